@@ -1,0 +1,1 @@
+"""Decision makers (rotation policies) with the stable-baselines3 ``predict`` signature."""

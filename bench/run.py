@@ -1,0 +1,47 @@
+"""Run every benchmark, print the medians and write ``bench/results.json`` (one flat key per figure).
+
+Usage: ``python -m bench.run [--only NAME ...] [--out PATH]``. Each benchmark module exposes
+``run() -> dict[str, float]``; keys carry their unit (``_ms``, ``_s``, ``_per_s``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import logging
+import os
+import platform
+from pathlib import Path
+
+# Benchmarks measure one core, as the issues' targets do.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+BENCHMARKS = ["bench.bench_recon", "bench.bench_sim"]
+DEFAULT_OUT = Path(__file__).with_name("results.json")
+
+
+def main(argv: list[str] | None = None) -> dict[str, float]:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--only", nargs="*", default=None, help="module names to run")
+    parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    results: dict[str, float] = {}
+    if args.out.exists():  # keep figures of benchmarks not run this time
+        results.update(json.loads(args.out.read_text()))
+    for name in BENCHMARKS:
+        if args.only and name.split(".")[-1] not in args.only and name not in args.only:
+            continue
+        figures = importlib.import_module(name).run()
+        for key, value in figures.items():
+            print(f"{key:40s} {value:10.3f}")
+        results.update(figures)
+    results["machine"] = f"{platform.machine()} {os.cpu_count()} cpus"  # type: ignore[assignment]
+    args.out.write_text(json.dumps(results, indent=2, sort_keys=True) + "\n")
+    print(f"wrote {args.out}")
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""branch_gym: simulator and learning testbed for active branch scanning in orchard robotics."""

@@ -1,0 +1,355 @@
+"""The eye-in-hand camera: pinhole intrinsics; RGB, metric depth and instance labels from pybullet.
+
+Conventions (the same as ``recon/camera.py``, which this module must not import):
+
+* Camera frame is OpenCV's: x right, y down, z forward along the optical axis.
+* Pixel ``(u, v)`` = (column, row); the centre of the top-left pixel is (0, 0).
+* ``T_world_camera`` is a (4, 4) transform with ``p_world = T_world_camera @ p_camera``.
+
+pybullet wants OpenGL matrices: a view matrix into a camera looking along -z with y up, and a
+projection matrix to normalised device coordinates (NDC). The renderers then map NDC to pixels
+with different half-pixel conventions (measured by rendering small markers at known points):
+with a centred projection, TinyRenderer puts the principal point at (160, 119) for 320x240 and
+the EGL/OpenGL renderer at (159.5, 119.5). :func:`projection_matrix` compensates per renderer,
+so rendered images follow the pinhole model ``u = fx x / z + cx`` to a small fraction of a pixel.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+import pybullet
+
+from branch_gym.sim.bullet import Bullet
+
+# Authors' simulated camera (reference.md, "Simulated world"): 320x240, 42 deg horizontal FoV.
+DEFAULT_WIDTH_PX = 320
+DEFAULT_HEIGHT_PX = 240
+DEFAULT_HFOV_DEG = 42.0
+DEFAULT_FOCAL_PX = (DEFAULT_WIDTH_PX / 2.0) / math.tan(math.radians(DEFAULT_HFOV_DEG) / 2.0)
+# Clip planes (our choice): branches come no closer than a few cm; the backdrop is a few m away.
+DEFAULT_NEAR_M = 0.01
+DEFAULT_FAR_M = 10.0
+
+# Where each renderer samples pixel (u, v), as the NDC offset (a, b) in
+# ndc_x = 2 (u + a) / W - 1 and ndc_y = 1 - 2 (v + b) / H (measured, see module docstring).
+_PIXEL_SAMPLE_OFFSET = {
+    pybullet.ER_TINY_RENDERER: (0.0, 1.0),
+    pybullet.ER_BULLET_HARDWARE_OPENGL: (0.5, 0.5),
+}
+_OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])  # flips camera y and z
+_LINK_SHIFT = 24  # pybullet segmentation value = body + ((link + 1) << 24)
+_BODY_MASK = (1 << _LINK_SHIFT) - 1
+BACKGROUND_LABEL = 0
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """Pinhole camera without distortion, plus the renderer's clip planes.
+
+    Attributes:
+        width: Image width in pixels.
+        height: Image height in pixels.
+        fx: Focal length along u in pixels (default: 42 deg HFOV at 320 px, ~416.8).
+        fy: Focal length along v in pixels.
+        cx: Principal point u in pixels (pixel centres at integers).
+        cy: Principal point v in pixels.
+        near_m: Near clip distance along the optical axis, metres.
+        far_m: Far clip distance along the optical axis, metres.
+    """
+
+    width: int = DEFAULT_WIDTH_PX
+    height: int = DEFAULT_HEIGHT_PX
+    fx: float = DEFAULT_FOCAL_PX
+    fy: float = DEFAULT_FOCAL_PX
+    cx: float = DEFAULT_WIDTH_PX / 2.0
+    cy: float = DEFAULT_HEIGHT_PX / 2.0
+    near_m: float = DEFAULT_NEAR_M
+    far_m: float = DEFAULT_FAR_M
+
+    def __post_init__(self) -> None:
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if int(value) != value or value <= 0:
+                raise ValueError(f"{name} must be a positive integer, got {value}")
+        for name in ("fx", "fy", "cx", "cy", "near_m", "far_m"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
+        if self.fx <= 0 or self.fy <= 0:
+            raise ValueError(f"fx and fy must be positive, got fx={self.fx}, fy={self.fy}")
+        if not 0 < self.near_m < self.far_m:
+            raise ValueError(
+                f"need 0 < near_m < far_m, got near_m={self.near_m}, far_m={self.far_m}"
+            )
+
+    @classmethod
+    def from_hfov(
+        cls,
+        width: int,
+        height: int,
+        hfov_deg: float,
+        near_m: float = DEFAULT_NEAR_M,
+        far_m: float = DEFAULT_FAR_M,
+    ) -> CameraSpec:
+        """Square pixels from the horizontal field of view; principal point (width/2, height/2)."""
+        if not 0.0 < hfov_deg < 180.0:
+            raise ValueError(f"hfov_deg must be in (0, 180), got {hfov_deg}")
+        focal = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
+        return cls(width, height, focal, focal, width / 2.0, height / 2.0, near_m, far_m)
+
+    @property
+    def K(self) -> np.ndarray:
+        """(3, 3) calibration matrix."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
+    def project(
+        self, points_world: np.ndarray, T_world_camera: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Pinhole projection.
+
+        Args:
+            points_world: (N, 3) points in metres, world frame.
+            T_world_camera: (4, 4) camera pose.
+
+        Returns:
+            pixels (N, 2) as (u, v), NaN at or behind the camera; depth_m (N,) camera-frame z.
+        """
+        T_camera_world = np.linalg.inv(check_pose(T_world_camera))
+        p_camera = (
+            np.asarray(points_world, float) @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
+        )
+        z = p_camera[:, 2]
+        pixels = np.full((len(z), 2), np.nan)
+        front = z > 0
+        pixels[front] = p_camera[front, :2] / z[front, None] * [self.fx, self.fy] + [
+            self.cx,
+            self.cy,
+        ]
+        return pixels, z
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Light for pybullet's renderers; always passed explicitly because it is sticky.
+
+    Attributes:
+        direction: Direction towards the light, world frame (our choice: above, on the camera side).
+        colour: RGB in [0, 1].
+        ambient: Ambient coefficient (our choice: bright, flat light; no specular glints that move
+            with the camera and confuse the point tracker).
+        diffuse: Diffuse coefficient.
+        specular: Specular coefficient.
+    """
+
+    direction: tuple[float, float, float] = (0.3, -0.8, 1.0)
+    colour: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    ambient: float = 0.6
+    diffuse: float = 0.45
+    specular: float = 0.0
+
+
+@dataclass(frozen=True)
+class CameraImages:
+    """One rendered frame.
+
+    Attributes:
+        rgb: (H, W, 3) uint8 colour image.
+        depth_m: (H, W) float32 z-depth along the optical axis in metres; inf where nothing was hit.
+        labels: (H, W) int32 instance labels: 0 background, 1 primary, 2 + i secondary i,
+            100 + k clutter object k (whatever ``label_of`` says; bodies it omits read 0).
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    labels: np.ndarray
+
+
+class BackgroundPainter(Protocol):
+    """Fills the pixels no pybullet body covers (e.g. ground and a backdrop, drawn cheaply)."""
+
+    def paint(
+        self,
+        rgb: np.ndarray,
+        depth_m: np.ndarray,
+        empty: np.ndarray,
+        T_world_camera: np.ndarray,
+        spec: CameraSpec,
+    ) -> None:
+        """Write colour and depth in place where ``empty`` (H, W) bool is True."""
+
+
+def check_pose(T_world_camera: np.ndarray) -> np.ndarray:
+    """Validate a (4, 4) rigid transform; returns it as a float array.
+
+    Raises:
+        ValueError: wrong shape, non-finite entries, or not a proper rotation.
+    """
+    T = np.asarray(T_world_camera, dtype=float)
+    if T.shape != (4, 4):
+        raise ValueError(f"T_world_camera must have shape (4, 4), got {T.shape}")
+    if not np.all(np.isfinite(T)):
+        raise ValueError("T_world_camera contains NaN or infinite values")
+    R = T[:3, :3]
+    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+        raise ValueError("T_world_camera rotation block is not a proper rotation")
+    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError("T_world_camera last row must be [0, 0, 0, 1]")
+    return T
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
+    """(4, 4) T_world_camera at ``eye`` with the optical axis (+z) towards ``target``.
+
+    The image's "up" (-y) is as close to ``up`` (world) as possible.
+
+    Raises:
+        ValueError: ``eye`` equals ``target``, or the view direction is parallel to ``up``.
+    """
+    eye, target, up = (np.asarray(a, dtype=float) for a in (eye, target, up))
+    forward = target - eye
+    if np.linalg.norm(forward) < 1e-12:
+        raise ValueError("look_at: eye and target coincide")
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    if np.linalg.norm(right) < 1e-9:
+        raise ValueError("look_at: view direction is parallel to up")
+    right /= np.linalg.norm(right)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+    T[:3, 3] = eye
+    return T
+
+
+def view_matrix(T_world_camera: np.ndarray) -> list[float]:
+    """pybullet view matrix (16 floats, column-major) for an OpenCV camera pose."""
+    view = _OPENCV_TO_OPENGL @ np.linalg.inv(check_pose(T_world_camera))
+    return view.T.ravel().tolist()
+
+
+def projection_matrix(spec: CameraSpec, renderer: int = pybullet.ER_TINY_RENDERER) -> list[float]:
+    """pybullet projection matrix (16 floats, column-major) reproducing ``spec``'s pinhole model.
+
+    Args:
+        spec: Intrinsics and clip planes.
+        renderer: ``pybullet.ER_TINY_RENDERER`` or ``pybullet.ER_BULLET_HARDWARE_OPENGL``: they
+            sample pixels at different offsets (module docstring).
+    """
+    if renderer not in _PIXEL_SAMPLE_OFFSET:
+        raise ValueError(f"unknown renderer {renderer}")
+    offset_u, offset_v = _PIXEL_SAMPLE_OFFSET[renderer]
+    near, far = spec.near_m, spec.far_m
+    P = np.zeros((4, 4))
+    P[0, 0] = 2.0 * spec.fx / spec.width
+    P[1, 1] = 2.0 * spec.fy / spec.height
+    P[0, 2] = 1.0 - 2.0 * (spec.cx + offset_u) / spec.width
+    P[1, 2] = 2.0 * (spec.cy + offset_v) / spec.height - 1.0
+    P[2, 2] = -(far + near) / (far - near)
+    P[2, 3] = -2.0 * far * near / (far - near)
+    P[3, 2] = -1.0
+    return P.T.ravel().tolist()
+
+
+def render_camera(
+    bullet: Bullet,
+    T_world_camera: np.ndarray,
+    spec: CameraSpec | None = None,
+    label_of: Mapping[tuple[int, int], int] | None = None,
+    background: BackgroundPainter | None = None,
+    lighting: Lighting | None = None,
+) -> CameraImages:
+    """Render RGB, metric depth and instance labels from an OpenCV camera pose.
+
+    Args:
+        bullet: The world; its ``renderer`` (TinyRenderer, or EGL when loaded) draws the image.
+        T_world_camera: (4, 4) camera pose.
+        spec: Intrinsics and clip planes (default: the authors' 320x240 camera).
+        label_of: Instance label per (body unique id, link index), link -1 being the base.
+            Pixels of bodies it omits are labelled 0; without it every label is 0.
+        background: Paints pixels no body covers (see :class:`BackgroundPainter`).
+        lighting: Light (default :class:`Lighting`); passed explicitly every time: it is sticky.
+
+    Returns:
+        The frame. Without a background, uncovered pixels keep the renderer's clear colour and
+        have depth inf.
+    """
+    spec = spec or CameraSpec()
+    lighting = lighting or Lighting()
+    _, _, rgba, depth_buffer, segmentation = bullet.p.getCameraImage(
+        spec.width,
+        spec.height,
+        viewMatrix=view_matrix(T_world_camera),
+        projectionMatrix=projection_matrix(spec, bullet.renderer),
+        lightDirection=list(lighting.direction),
+        lightColor=list(lighting.colour),
+        lightAmbientCoeff=lighting.ambient,
+        lightDiffuseCoeff=lighting.diffuse,
+        lightSpecularCoeff=lighting.specular,
+        shadow=0,
+        renderer=bullet.renderer,
+        flags=pybullet.ER_SEGMENTATION_MASK_OBJECT_AND_LINKINDEX,
+    )
+    shape = (spec.height, spec.width)
+    rgb = np.ascontiguousarray(np.reshape(rgba, (*shape, 4))[:, :, :3], dtype=np.uint8)
+    segmentation = np.reshape(segmentation, shape)
+    empty = segmentation < 0
+    depth_m = _linear_depth(np.reshape(depth_buffer, shape), spec)
+    depth_m[empty] = np.inf
+    if background is not None:
+        background.paint(rgb, depth_m, empty, T_world_camera, spec)
+    return CameraImages(rgb=rgb, depth_m=depth_m, labels=_labels(segmentation, label_of))
+
+
+def render_snapshot(
+    bullet: Bullet,
+    width: int = 640,
+    height: int = 480,
+    eye: tuple[float, float, float] = (1.0, -1.4, 1.0),
+    target: tuple[float, float, float] = (0.0, 0.0, 0.5),
+    hfov_deg: float = 50.0,
+    background: BackgroundPainter | None = None,
+) -> np.ndarray:
+    """Third-person colour view of the whole scene (for ``render_mode="rgb_array"``).
+
+    Args:
+        bullet: The world.
+        width: Image width in pixels.
+        height: Image height in pixels.
+        eye: Viewpoint in metres, world frame (default: in front, to the right, above).
+        target: Point looked at, metres, world frame.
+        hfov_deg: Horizontal field of view in degrees.
+        background: Optional painter for the pixels no body covers.
+
+    Returns:
+        (height, width, 3) uint8 RGB image.
+    """
+    spec = CameraSpec.from_hfov(width, height, hfov_deg)
+    return render_camera(bullet, look_at(eye, target), spec, background=background).rgb
+
+
+def _linear_depth(depth_buffer: np.ndarray, spec: CameraSpec) -> np.ndarray:
+    """Metric z-depth (H, W) float32 from OpenGL's non-linear [0, 1] depth buffer."""
+    near, far = spec.near_m, spec.far_m
+    buffer = np.asarray(depth_buffer, dtype=np.float64)
+    return (far * near / (far - (far - near) * buffer)).astype(np.float32)
+
+
+def _labels(segmentation: np.ndarray, label_of: Mapping[tuple[int, int], int] | None) -> np.ndarray:
+    """Instance labels (H, W) int32 from pybullet's object-and-link segmentation buffer."""
+    labels = np.zeros(segmentation.shape, dtype=np.int32)
+    if not label_of:
+        return labels
+    n_bodies = max(body for body, _ in label_of) + 1
+    n_links = max(link for _, link in label_of) + 2  # column 0 is the base (link -1)
+    table = np.zeros((n_bodies + 1, n_links + 1), dtype=np.int32)  # last row/col: unknown
+    for (body, link), label in label_of.items():
+        table[body, link + 1] = label
+    covered = segmentation >= 0
+    value = segmentation[covered].astype(np.int64)
+    body = np.minimum(value & _BODY_MASK, n_bodies)
+    link_column = np.minimum(value >> _LINK_SHIFT, n_links)
+    labels[covered] = table[body, link_column]
+    return labels

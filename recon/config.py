@@ -1,0 +1,104 @@
+"""Parameters of the 3D modeler, with the paper's values as defaults.
+
+Every threshold cites its source: the paper (section IV) or ``reference.md`` (which also records
+where the authors' code differs).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+
+@dataclass(frozen=True)
+class ModelerConfig:
+    """Thresholds and schedules of :class:`recon.modeler.Modeler`.
+
+    Attributes:
+        iteration_spacing_m: Camera motion between modeling iterations (paper IV: 10 mm).
+        tracking_frames: Frames per tracking window, M (paper IV-C: M = 8).
+        tracking_spacing_m: Camera motion between stored tracking frames (paper IV-C: 1.0 mm;
+            the authors' code: 7.5 mm / 8).
+        consistency_min_fraction: Fraction of projected model points that must land in the mask
+            and near the 2D curve (paper IV: 60 %).
+        consistency_tolerance_px: Distance to the 2D curve for a consistent point (paper IV: 4 px;
+            the authors' code used 25 px).
+        restart_after_inconsistent: The n-th Inconsistent in a row is a Restart (paper IV: 3rd).
+        max_depth_m: Lifted points deeper than this are dropped (paper IV: 1 m).
+        max_reprojection_px: Lifted points with a larger reprojection error are dropped (paper IV: 4 px).
+        model_reprojection_px: Existing model points further than this from the 2D curve are dropped
+            before refitting (paper IV: 4 px).
+        ransac_inlier_m: RANSAC inlier threshold for the 3D Bezier fit (paper IV: 3 cm).
+        ransac_min_inlier_fraction: Below this inlier fraction the frame is Inconsistent (paper IV: 60 %).
+        ransac_iterations: RANSAC hypotheses per fit (our choice: enough for 40 % outliers).
+        min_lifted_points: Fewest lifted points to (re)initialise the primary (our choice: a cubic
+            needs 4; one more gives RANSAC a check).
+        primary_spacing_px: Target spacing of model points when projected (paper IV: ~30 px).
+        image_margin_px: Model points are "visible" when projected this far inside the image
+            (reference.md: the 2D stage drops pixels within 10 px of the border).
+        radius_from_paper_formula: Use the paper's r = z r_px / f (True) or its first-order
+            correction for the depth of the silhouette, r = z r_px / (f - r_px) (False, default:
+            the surface point is r nearer than the axis).
+        connection_distance_m: A new secondary must point within this of the primary centerline
+            (paper IV: 3 cm).
+        connection_ray_length_m: How far back from its start a secondary's ray is followed (our
+            choice: the longest secondary is 15 cm, reference.md).
+        secondary_min_points: Fewest lifted points to create a secondary (our choice).
+        secondary_merge_distance_m: A detection whose samples lie (median) this close to a model
+            secondary is the same branch (our choice: half the metric's 2 cm match radius).
+        secondary_merge_angle_deg: ... and whose direction differs by at most this (our choice).
+        secondary_trust_min: A secondary whose trust falls below this is deleted (the authors'
+            code kept a trust score, reference.md; threshold our choice).
+        secondary_confirmations: Observations a secondary needs to be reported (our choice:
+            1 keeps the paper's behaviour of reporting every connected detection).
+        secondary_max_observations: Most raw lifted points kept per secondary (memory bound).
+        secondary_sample_spacing_m: Spacing of the reported secondary centerline points.
+        primary_sample_spacing_m: Spacing of the reported primary centerline points.
+    """
+
+    iteration_spacing_m: float = 0.010
+    tracking_frames: int = 8
+    tracking_spacing_m: float = 0.001
+    consistency_min_fraction: float = 0.6
+    consistency_tolerance_px: float = 4.0
+    restart_after_inconsistent: int = 3
+    max_depth_m: float = 1.0
+    max_reprojection_px: float = 4.0
+    model_reprojection_px: float = 4.0
+    ransac_inlier_m: float = 0.03
+    ransac_min_inlier_fraction: float = 0.6
+    ransac_iterations: int = 40
+    min_lifted_points: int = 5
+    primary_spacing_px: float = 30.0
+    image_margin_px: float = 10.0
+    radius_from_paper_formula: bool = False
+    connection_distance_m: float = 0.03
+    connection_ray_length_m: float = 0.15
+    secondary_min_points: int = 3
+    secondary_merge_distance_m: float = 0.01
+    secondary_merge_angle_deg: float = 45.0
+    secondary_trust_min: int = -2
+    secondary_confirmations: int = 1
+    secondary_max_observations: int = 400
+    secondary_sample_spacing_m: float = 0.005
+    primary_sample_spacing_m: float = 0.005
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, bool):
+                continue
+            if f.name == "secondary_trust_min":
+                continue
+            if not value > 0:
+                raise ValueError(f"ModelerConfig.{f.name} must be positive, got {value}")
+        for name in ("consistency_min_fraction", "ransac_min_inlier_fraction"):
+            if getattr(self, name) > 1:
+                raise ValueError(f"ModelerConfig.{name} is a fraction in (0, 1]")
+        if self.tracking_frames < 2:
+            raise ValueError("ModelerConfig.tracking_frames must be at least 2 to triangulate")
+        window_m = (self.tracking_frames - 1) * self.tracking_spacing_m
+        if window_m > self.iteration_spacing_m:
+            raise ValueError(
+                "ModelerConfig: the tracking window (tracking_frames - 1) * tracking_spacing_m "
+                f"= {window_m} m must fit within iteration_spacing_m = {self.iteration_spacing_m} m"
+            )

@@ -1,0 +1,432 @@
+"""Evaluation of a reconstruction against ground truth (paper Table I; reference.md "Evaluation").
+
+Primary branch (PB): the ground-truth centerline is resampled densely; every reconstructed primary
+point in the scanned band contributes its nearest-neighbour distance (the residual) and its radius
+error (reconstructed minus ground-truth radius at that nearest point).
+
+Secondary branches (SB): both sides are resampled every millimetre. Ground-truth branches the scan
+could not have seen are out of scope: base (first point) above the scanned top height plus a margin,
+or below the band bottom (the simulator places none there; a real scan starts lower). Reconstructed
+branches shorter than a minimum horizontal extent are ignored. A reconstructed branch is a
+*candidate* for a ground-truth branch when their base-to-tip directions are within an angle and the
+median distance of its samples to the ground-truth branch is small. A one-to-one assignment over the
+candidates (largest number of pairs, then least total median distance) gives the matches:
+
+* matched to an in-scope branch: a match; matched to an out-of-scope branch: ignored (not spurious);
+* not matched but a candidate of some in-scope branch: a duplicate (that branch was taken);
+* a candidate of nothing: spurious. Unmatched in-scope ground-truth branches are missed.
+
+Percentages follow the authors' code: missed, spurious and duplicates are all divided by the number
+of in-scope ground-truth branches. SB residuals and radius errors use the *overlapping* part of each
+matched pair: the reconstructed samples whose nearest ground-truth sample is neither end of the
+ground-truth branch, i.e. that project inside its arc-length extent.
+
+Undefined metrics are NaN (no reconstructed primary point in the band -> PB metrics NaN; no match ->
+SB metrics NaN; no in-scope ground-truth branch -> percentages NaN); :func:`aggregate` skips them.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+
+PERCENT = 100.0
+
+
+class BranchLike(Protocol):
+    """A centerline with radii: :class:`recon.model.BranchModel` or a ground-truth branch."""
+
+    @property
+    def points(self) -> np.ndarray:
+        """(N, 3) centerline points in metres, world frame, base to tip."""
+        ...
+
+    @property
+    def radii(self) -> np.ndarray:
+        """(N,) radius in metres at each point."""
+        ...
+
+
+class TreeLike(Protocol):
+    """A primary branch and its secondaries: :class:`recon.model.TreeModel` or ground truth."""
+
+    @property
+    def primary(self) -> BranchLike | None: ...
+
+    @property
+    def secondaries(self) -> Sequence[BranchLike]: ...
+
+
+@dataclass(frozen=True)
+class MetricsConfig:
+    """Evaluation parameters, the authors' analysis code (reference.md, "Evaluation").
+
+    Attributes:
+        band_min_z_m: Bottom of the scanned band; PB points at or below it are not scored (0.325 m).
+        band_max_z_m: Top of the scanned band and default scanned top height (0.75 m).
+        primary_resample_count: Points of the resampled ground-truth primary (10,000).
+        secondary_resample_step_m: Resampling step of both SB sets (1 mm).
+        gt_base_margin_m: GT branches whose base is above the scanned top height plus this are out
+            of scope (2 cm).
+        min_horizontal_length_m: Reconstructed branches whose base-to-tip vector is no longer than
+            this horizontally are ignored (2.5 cm).
+        max_match_angle_deg: Largest angle between base-to-tip vectors of a candidate pair (60 deg).
+        max_match_median_distance_m: A candidate's samples lie closer than this (median nearest-
+            neighbour distance) to the GT branch (2 cm).
+    """
+
+    band_min_z_m: float = 0.325
+    band_max_z_m: float = 0.75
+    primary_resample_count: int = 10_000
+    secondary_resample_step_m: float = 0.001
+    gt_base_margin_m: float = 0.02
+    min_horizontal_length_m: float = 0.025
+    max_match_angle_deg: float = 60.0
+    max_match_median_distance_m: float = 0.02
+
+    def __post_init__(self) -> None:
+        if not self.band_min_z_m < self.band_max_z_m:
+            raise ValueError(
+                f"band_min_z_m ({self.band_min_z_m}) must be below "
+                f"band_max_z_m ({self.band_max_z_m})"
+            )
+        if self.primary_resample_count < 2:
+            raise ValueError(
+                f"primary_resample_count must be >= 2, got {self.primary_resample_count}"
+            )
+        positive = {
+            "secondary_resample_step_m": self.secondary_resample_step_m,
+            "max_match_median_distance_m": self.max_match_median_distance_m,
+        }
+        non_negative = {
+            "gt_base_margin_m": self.gt_base_margin_m,
+            "min_horizontal_length_m": self.min_horizontal_length_m,
+        }
+        for name, value in positive.items():
+            if not value > 0.0:
+                raise ValueError(f"{name} must be positive, got {value}")
+        for name, value in non_negative.items():
+            if not value >= 0.0:
+                raise ValueError(f"{name} must be >= 0, got {value}")
+        if not 0.0 < self.max_match_angle_deg <= 180.0:
+            raise ValueError(
+                f"max_match_angle_deg must be in (0, 180], got {self.max_match_angle_deg}"
+            )
+
+
+@dataclass
+class TreeMetrics:
+    """One trial's evaluation. Distances in metres; NaN where undefined (see module docstring).
+
+    Attributes:
+        pb_residuals_m: (K,) distance of each reconstructed primary point in the band to the GT.
+        pb_radius_errors_m: (K,) reconstructed minus GT radius at the nearest GT point.
+        sb_residuals_m: (L,) distances of the overlapping samples of all matched pairs.
+        sb_radius_errors_m: (L,) reconstructed minus GT radius at those samples.
+        matches: (GT index, reconstructed index) pairs, indices into ``truth.secondaries`` and
+            ``model.secondaries``.
+        n_gt: In-scope GT secondaries.
+        n_matched, n_missed, n_spurious, n_duplicates: Counts as in the module docstring.
+        n_ignored_reconstructed: Reconstructed secondaries too short, or matched (or only a
+            candidate) out of scope.
+        scanned_top_z_m: Scanned top height used for the GT scope.
+        pb_residual_mean_m, sb_residual_mean_m: Means of the residuals (derived).
+        pb_radius_rmse_m, sb_radius_rmse_m: RMS of the radius errors (derived).
+        missed_pct, spurious_pct, duplicate_pct: Counts in % of ``n_gt`` (derived).
+    """
+
+    pb_residuals_m: np.ndarray
+    pb_radius_errors_m: np.ndarray
+    sb_residuals_m: np.ndarray
+    sb_radius_errors_m: np.ndarray
+    matches: list[tuple[int, int]]
+    n_gt: int
+    n_matched: int
+    n_missed: int
+    n_spurious: int
+    n_duplicates: int
+    n_ignored_reconstructed: int
+    scanned_top_z_m: float
+    pb_residual_mean_m: float = field(init=False)
+    pb_radius_rmse_m: float = field(init=False)
+    sb_residual_mean_m: float = field(init=False)
+    sb_radius_rmse_m: float = field(init=False)
+    missed_pct: float = field(init=False)
+    spurious_pct: float = field(init=False)
+    duplicate_pct: float = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.pb_residual_mean_m = _mean(self.pb_residuals_m)
+        self.pb_radius_rmse_m = _rms(self.pb_radius_errors_m)
+        self.sb_residual_mean_m = _mean(self.sb_residuals_m)
+        self.sb_radius_rmse_m = _rms(self.sb_radius_errors_m)
+        self.missed_pct = _percent(self.n_missed, self.n_gt)
+        self.spurious_pct = _percent(self.n_spurious, self.n_gt)
+        self.duplicate_pct = _percent(self.n_duplicates, self.n_gt)
+
+    def to_dict(self) -> dict[str, float | int | str]:
+        """Flat JSON-able row (one line of a trials table); NaN stays a float NaN."""
+        return {
+            "pb_residual_mean_m": self.pb_residual_mean_m,
+            "pb_radius_rmse_m": self.pb_radius_rmse_m,
+            "pb_n_points": len(self.pb_residuals_m),
+            "sb_residual_mean_m": self.sb_residual_mean_m,
+            "sb_radius_rmse_m": self.sb_radius_rmse_m,
+            "sb_n_samples": len(self.sb_residuals_m),
+            "n_gt": self.n_gt,
+            "n_matched": self.n_matched,
+            "n_missed": self.n_missed,
+            "n_spurious": self.n_spurious,
+            "n_duplicates": self.n_duplicates,
+            "n_ignored_reconstructed": self.n_ignored_reconstructed,
+            "missed_pct": self.missed_pct,
+            "spurious_pct": self.spurious_pct,
+            "duplicate_pct": self.duplicate_pct,
+            "scanned_top_z_m": self.scanned_top_z_m,
+            "matches": json.dumps([list(pair) for pair in self.matches]),
+        }
+
+
+def evaluate(
+    model: TreeLike,
+    truth: TreeLike,
+    config: MetricsConfig | None = None,
+    scanned_top_z_m: float | None = None,
+) -> TreeMetrics:
+    """Score a reconstructed tree against ground truth.
+
+    Args:
+        model: The reconstruction (:class:`recon.model.TreeModel`).
+        truth: Ground truth with the same duck type; it must have a primary branch.
+        config: Evaluation parameters; the authors' values by default.
+        scanned_top_z_m: Highest height the scan reached, metres (e.g. lower after a failure);
+            defaults to ``config.band_max_z_m``.
+
+    Returns:
+        The trial's metrics.
+
+    Raises:
+        ValueError: malformed branches (shapes, non-finite values, a ground-truth branch with fewer
+            than two points or no base-to-tip extent), no ground-truth primary, or a non-finite
+            scanned top height.
+    """
+    config = config or MetricsConfig()
+    top_m = config.band_max_z_m if scanned_top_z_m is None else float(scanned_top_z_m)
+    if not np.isfinite(top_m):
+        raise ValueError(f"scanned_top_z_m must be finite, got {scanned_top_z_m}")
+    if truth.primary is None:
+        raise ValueError("truth has no primary branch")
+    gt_primary = _branch_arrays(truth.primary, "truth.primary", min_points=2)
+    model_primary = (
+        None if model.primary is None else _branch_arrays(model.primary, "model.primary", 0)
+    )
+    pb_residuals, pb_radius_errors = _primary_errors(model_primary, gt_primary, config)
+
+    gt = [_branch_arrays(b, f"truth.secondaries[{i}]", 2) for i, b in enumerate(truth.secondaries)]
+    for i, (points, _) in enumerate(gt):
+        if np.allclose(points[-1], points[0]):
+            raise ValueError(f"truth.secondaries[{i}] has no base-to-tip extent")
+    reconstructed = [
+        _branch_arrays(b, f"model.secondaries[{i}]", 0) for i, b in enumerate(model.secondaries)
+    ]
+    return TreeMetrics(
+        pb_residuals_m=pb_residuals,
+        pb_radius_errors_m=pb_radius_errors,
+        scanned_top_z_m=top_m,
+        **_secondary_metrics(reconstructed, gt, top_m, config),
+    )
+
+
+def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
+    """Mean and standard deviation over trials, as Table I reports them.
+
+    PB and SB residuals are pooled over all points of all trials (as the paper); radius RMSEs are
+    averaged over the trials where they are defined; missed / spurious / duplicate percentages are
+    totals (sum over trials / sum of in-scope GT branches). Standard deviations are population
+    (ddof=0). Undefined entries are NaN.
+
+    Raises:
+        ValueError: no trials.
+    """
+    if not trials:
+        raise ValueError("aggregate needs at least one trial")
+    pb = np.concatenate([t.pb_residuals_m for t in trials])
+    sb = np.concatenate([t.sb_residuals_m for t in trials])
+    pb_rmse = np.array([t.pb_radius_rmse_m for t in trials])
+    sb_rmse = np.array([t.sb_radius_rmse_m for t in trials])
+    totals = {
+        name: int(sum(getattr(t, name) for t in trials))
+        for name in ("n_gt", "n_matched", "n_missed", "n_spurious", "n_duplicates")
+    }
+    return {
+        "n_trials": len(trials),
+        "n_trials_without_pb": int(sum(len(t.pb_residuals_m) == 0 for t in trials)),
+        "pb_residual_mean_m": _mean(pb),
+        "pb_residual_std_m": _std(pb),
+        "pb_n_points": len(pb),
+        "pb_radius_rmse_mean_m": _mean(pb_rmse[np.isfinite(pb_rmse)]),
+        "pb_radius_rmse_std_m": _std(pb_rmse[np.isfinite(pb_rmse)]),
+        "sb_residual_mean_m": _mean(sb),
+        "sb_residual_std_m": _std(sb),
+        "sb_n_samples": len(sb),
+        "sb_radius_rmse_mean_m": _mean(sb_rmse[np.isfinite(sb_rmse)]),
+        "sb_radius_rmse_std_m": _std(sb_rmse[np.isfinite(sb_rmse)]),
+        **totals,
+        "missed_pct": _percent(totals["n_missed"], totals["n_gt"]),
+        "spurious_pct": _percent(totals["n_spurious"], totals["n_gt"]),
+        "duplicate_pct": _percent(totals["n_duplicates"], totals["n_gt"]),
+    }
+
+
+Branch = tuple[np.ndarray, np.ndarray]  # (N, 3) points and (N,) radii
+
+
+def _branch_arrays(branch: BranchLike, name: str, min_points: int) -> Branch:
+    """Validated float copies of a branch's points and radii."""
+    points = np.asarray(branch.points, dtype=float)
+    radii = np.asarray(branch.radii, dtype=float)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{name}.points must have shape (N, 3), got {points.shape}")
+    if radii.shape != (len(points),):
+        raise ValueError(f"{name}.radii must have shape ({len(points)},), got {radii.shape}")
+    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(radii))):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    if len(points) < min_points:
+        raise ValueError(f"{name} needs at least {min_points} points, got {len(points)}")
+    return points, radii
+
+
+def _resample(branch: Branch, step_m: float | None = None, count: int | None = None) -> Branch:
+    """Resample a polyline and its radii by arc length: every ``step_m`` (tip included) or at
+    ``count`` evenly spaced positions."""
+    points, radii = branch
+    segment = np.linalg.norm(np.diff(points, axis=0), axis=1)
+    keep = np.concatenate([[True], segment > 0.0])  # np.interp needs increasing arc lengths
+    points, radii = points[keep], radii[keep]
+    arc = np.concatenate([[0.0], np.cumsum(segment[segment > 0.0])])
+    total = arc[-1]
+    if total == 0.0:
+        return points[:1], radii[:1]
+    if count is not None:
+        positions = np.linspace(0.0, total, count)
+    else:
+        positions = np.append(np.arange(0.0, total, step_m), total)
+    columns = np.column_stack([points, radii])
+    resampled = np.column_stack([np.interp(positions, arc, c) for c in columns.T])
+    return resampled[:, :3], resampled[:, 3]
+
+
+def _primary_errors(
+    model_primary: Branch | None, gt_primary: Branch, config: MetricsConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """(K,) residuals and (K,) radius errors of the reconstructed primary points in the band."""
+    if model_primary is None or len(model_primary[0]) == 0:
+        return np.zeros(0), np.zeros(0)
+    points, radii = model_primary
+    z = points[:, 2]
+    in_band = (z > config.band_min_z_m) & (z < config.band_max_z_m)
+    gt_points, gt_radii = _resample(gt_primary, count=config.primary_resample_count)
+    distance, nearest = cKDTree(gt_points).query(points[in_band])
+    return distance, radii[in_band] - gt_radii[nearest]
+
+
+def _secondary_metrics(
+    reconstructed: list[Branch], gt: list[Branch], top_m: float, config: MetricsConfig
+) -> dict:
+    """Scope, candidates, one-to-one assignment, counts and overlap errors (module docstring).
+
+    Returns:
+        The secondary-branch fields of :class:`TreeMetrics`, by name.
+    """
+    step = config.secondary_resample_step_m
+    gt_samples = [_resample(b, step_m=step) for b in gt]
+    gt_trees = [cKDTree(points) for points, _ in gt_samples]
+    base_z = np.array([points[0, 2] for points, _ in gt])
+    in_scope = (base_z >= config.band_min_z_m) & (base_z <= top_m + config.gt_base_margin_m)
+    kept = [
+        i
+        for i, (points, _) in enumerate(reconstructed)
+        if len(points) >= 2
+        and np.linalg.norm((points[-1] - points[0])[:2]) > config.min_horizontal_length_m
+    ]
+    rec_samples = {i: _resample(reconstructed[i], step_m=step) for i in kept}
+
+    median_m = np.full((len(kept), len(gt)), np.inf)  # inf: not a candidate
+    max_angle_rad = np.radians(config.max_match_angle_deg)
+    for row, i in enumerate(kept):
+        rec_direction = reconstructed[i][0][-1] - reconstructed[i][0][0]
+        for j, (gt_points, _) in enumerate(gt):
+            if _angle_rad(rec_direction, gt_points[-1] - gt_points[0]) > max_angle_rad:
+                continue
+            distance_m = np.median(gt_trees[j].query(rec_samples[i][0])[0])
+            if distance_m < config.max_match_median_distance_m:
+                median_m[row, j] = distance_m
+    candidate = np.isfinite(median_m)
+    # Non-candidates cost more than all candidates together: the most pairs, then the least cost.
+    rows, cols = linear_sum_assignment(
+        np.where(candidate, median_m, 1.0 + median_m[candidate].sum())
+    )
+    paired = candidate[rows, cols]
+    rows, cols = rows[paired], cols[paired]
+
+    matches = sorted((int(j), kept[r]) for r, j in zip(rows, cols, strict=True) if in_scope[j])
+    unassigned = candidate[np.setdiff1d(np.arange(len(kept)), rows)]
+    n_duplicates = int(np.sum(np.any(unassigned[:, in_scope], axis=1)))
+    n_spurious = int(np.sum(~np.any(unassigned, axis=1)))
+    residuals, radius_errors = _overlap_errors(matches, rec_samples, gt_samples, gt_trees)
+    return {
+        "sb_residuals_m": residuals,
+        "sb_radius_errors_m": radius_errors,
+        "matches": matches,
+        "n_gt": int(in_scope.sum()),
+        "n_matched": len(matches),
+        "n_missed": int(in_scope.sum()) - len(matches),
+        "n_spurious": n_spurious,
+        "n_duplicates": n_duplicates,
+        "n_ignored_reconstructed": len(reconstructed) - len(matches) - n_spurious - n_duplicates,
+    }
+
+
+def _overlap_errors(
+    matches: list[tuple[int, int]],
+    rec_samples: dict[int, Branch],
+    gt_samples: list[Branch],
+    gt_trees: list[cKDTree],
+) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals and radius errors of the reconstructed samples inside each GT's extent."""
+    residuals, radius_errors = [np.zeros(0)], [np.zeros(0)]
+    for j, i in matches:
+        points, radii = rec_samples[i]
+        distance, nearest = gt_trees[j].query(points)
+        inside = (nearest > 0) & (nearest < len(gt_samples[j][0]) - 1)
+        residuals.append(distance[inside])
+        radius_errors.append(radii[inside] - gt_samples[j][1][nearest[inside]])
+    return np.concatenate(residuals), np.concatenate(radius_errors)
+
+
+def _angle_rad(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle in radians between two non-zero 3-vectors."""
+    cosine = np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b))
+    return float(np.arccos(np.clip(cosine, -1.0, 1.0)))
+
+
+def _mean(values: np.ndarray) -> float:
+    return float(np.mean(values)) if len(values) else float("nan")
+
+
+def _std(values: np.ndarray) -> float:
+    return float(np.std(values)) if len(values) else float("nan")
+
+
+def _rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else float("nan")
+
+
+def _percent(count: int, total: int) -> float:
+    return PERCENT * count / total if total else float("nan")

@@ -1,0 +1,285 @@
+"""The 3D modeler (paper section IV): a stream of frames in, a tree model out.
+
+Feed every frame to :meth:`Modeler.update`. The modeler stores a tracking frame every ~1 mm of
+camera motion and runs one iteration every 10 mm:
+
+1. fit 2D curves to the newest mask (:mod:`recon.curve2d`);
+2. check the 3D primary against them: Consistent, Inconsistent (skip the frame) or, on the 3rd
+   Inconsistent in a row, Restart (delete the model seen in the last three frames);
+3. lift the 2D samples to 3D (:mod:`recon.lifting`) and refit the visible primary (RANSAC cubic
+   Bezier, :mod:`recon.primary`);
+4. lift the secondary candidates, keep those connected to the primary, merge re-detections and
+   prune branches the masks stop supporting (:mod:`recon.secondary`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from recon.config import ModelerConfig
+from recon.curve2d import Curve2DConfig, MaskCurves, fit_mask_curves
+from recon.frame import Frame
+from recon.lifting import lift_pixels
+from recon.model import TreeModel
+from recon.primary import fit_visible_segment, project_model, splice
+from recon.secondary import SecondaryBranches, SecondaryDetection
+from recon.tracking import PointTracker
+
+logger = logging.getLogger(__name__)
+
+
+class Outcome(str, Enum):
+    """Result of one modeling iteration (paper IV)."""
+
+    CONSISTENT = "consistent"
+    INCONSISTENT = "inconsistent"
+    RESTART = "restart"
+
+
+@dataclass
+class IterationReport:
+    """What one iteration did and how long each stage took.
+
+    Attributes:
+        index: Iteration counter since the last reset.
+        outcome: Consistent / Inconsistent / Restart.
+        reason: Why (e.g. "no primary in mask", "model disagrees with mask", "initialised").
+        consistency_fraction: Fraction of visible model points that agreed (NaN before a model).
+        n_lifted: Primary points that survived lifting.
+        n_secondary_detections: Secondary candidates lifted in 3D this iteration.
+        n_new_secondaries: Model secondaries created this iteration.
+        n_secondaries: Model secondaries after the iteration.
+        mask_curves: The 2D curves of the newest mask (for observations and overlays).
+        search_truncated: The 2D path search hit its cap.
+        timings_ms: Stage name -> milliseconds (curve2d, consistency, tracking, triangulation,
+            fit3d, secondaries, total).
+    """
+
+    index: int
+    outcome: Outcome
+    reason: str
+    consistency_fraction: float = float("nan")
+    n_lifted: int = 0
+    n_secondary_detections: int = 0
+    n_new_secondaries: int = 0
+    n_secondaries: int = 0
+    mask_curves: MaskCurves | None = None
+    search_truncated: bool = False
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+
+class Modeler:
+    """Incremental tree reconstruction from frames (RGB, mask, pose, intrinsics).
+
+    Args:
+        tracker: Point tracker used to lift pixels (e.g. :class:`recon.tracking.LucasKanadeTracker`).
+        config: Modeler thresholds (paper defaults).
+        curve_config: 2D curve-fitting parameters (paper defaults).
+        seed: Seed of the modeler's own random generator (RANSAC).
+    """
+
+    def __init__(
+        self,
+        tracker: PointTracker,
+        config: ModelerConfig | None = None,
+        curve_config: Curve2DConfig | None = None,
+        seed: int | None = 0,
+    ) -> None:
+        self.tracker = tracker
+        self.config = config or ModelerConfig()
+        self.curve_config = curve_config or Curve2DConfig()
+        self.reset(seed)
+
+    def reset(self, seed: int | None = 0) -> None:
+        """Forget the model and the stored frames."""
+        self.rng = np.random.default_rng(seed)
+        self._window: deque[Frame] = deque(maxlen=self.config.tracking_frames)
+        self._recent_inconsistent: deque[Frame] = deque(
+            maxlen=self.config.restart_after_inconsistent
+        )
+        self._last_iteration_position: np.ndarray | None = None
+        self._inconsistent_streak = 0
+        self._iterations = 0
+        self._primary = None
+        self._secondaries = SecondaryBranches(self.config, self.rng)
+
+    @property
+    def model(self) -> TreeModel:
+        """The current tree model (copies are cheap; arrays are shared)."""
+        return TreeModel(self._primary, self._secondaries.models())
+
+    @property
+    def inconsistent_streak(self) -> int:
+        """Inconsistent iterations in a row."""
+        return self._inconsistent_streak
+
+    # ---------------------------------------------------------------- frame scheduling
+    def wants_frame(self, T_world_camera: np.ndarray) -> bool:
+        """Whether a frame at this pose would be stored (lets a simulator skip renders)."""
+        position = np.asarray(T_world_camera, float)[:3, 3]
+        if not self._window:
+            return True
+        moved = np.linalg.norm(position - self._window[-1].T_world_camera[:3, 3])
+        if moved < self.config.tracking_spacing_m * (1 - 1e-6):
+            return False
+        if self._last_iteration_position is None:
+            return True
+        since = np.linalg.norm(position - self._last_iteration_position)
+        window_m = (self.config.tracking_frames - 1) * self.config.tracking_spacing_m
+        return since >= self.config.iteration_spacing_m - window_m - self.config.tracking_spacing_m
+
+    def update(self, frame: Frame) -> IterationReport | None:
+        """Store ``frame`` if the camera moved enough and run an iteration when one is due.
+
+        Returns:
+            The iteration's report, or None when no iteration ran.
+        """
+        position = frame.T_world_camera[:3, 3]
+        if self._window:
+            moved = np.linalg.norm(position - self._window[-1].T_world_camera[:3, 3])
+            if moved < self.config.tracking_spacing_m * (1 - 1e-6):
+                return None
+        self._window.append(frame)
+        if len(self._window) < self.config.tracking_frames:
+            return None
+        if self._last_iteration_position is not None:
+            since = np.linalg.norm(position - self._last_iteration_position)
+            if since < self.config.iteration_spacing_m * (1 - 1e-6):
+                return None
+        return self.run_iteration(list(self._window))
+
+    # ---------------------------------------------------------------- one iteration
+    def run_iteration(self, frames: list[Frame]) -> IterationReport:
+        """One modeling iteration on a tracking window (oldest first; the newest is current)."""
+        if len(frames) < 2:
+            raise ValueError(
+                f"an iteration needs at least 2 frames to triangulate, got {len(frames)}"
+            )
+        t_start = time.perf_counter()
+        cfg = self.config
+        frame = frames[-1]
+        self._iterations += 1
+        timings: dict[str, float] = {}
+
+        t0 = time.perf_counter()
+        curves = fit_mask_curves(frame.mask, self.curve_config)
+        timings["curve2d_ms"] = (time.perf_counter() - t0) * 1e3
+        report = IterationReport(
+            self._iterations,
+            Outcome.CONSISTENT,
+            "",
+            mask_curves=curves,
+            search_truncated=curves.search_truncated,
+            timings_ms=timings,
+        )
+        if curves.primary is None:
+            return self._inconsistent(report, frame, "no primary branch in the mask", t_start)
+
+        # Consistency of the existing model with this mask.
+        t0 = time.perf_counter()
+        restart = False
+        projected = None
+        if self._primary is not None:
+            projected = project_model(self._primary.points, frame, curves.primary.curve, cfg)
+            report.consistency_fraction = projected.consistent_fraction
+            if (
+                projected.visible.any()
+                and report.consistency_fraction < cfg.consistency_min_fraction
+            ):
+                if self._inconsistent_streak + 1 < cfg.restart_after_inconsistent:
+                    timings["consistency_ms"] = (time.perf_counter() - t0) * 1e3
+                    return self._inconsistent(report, frame, "model disagrees with mask", t_start)
+                restart = True
+        timings["consistency_ms"] = (time.perf_counter() - t0) * 1e3
+
+        # Lift the primary samples and refit the visible part.
+        lifted = lift_pixels(
+            frames, curves.primary.samples_px, curves.primary.radii_px, self.tracker, cfg
+        )
+        timings.update(lifted.timings_ms)
+        report.n_lifted = len(lifted)
+        t0 = time.perf_counter()
+        replace = np.zeros(0, dtype=bool)
+        fit_points, fit_radii = lifted.centers, lifted.radii_m
+        if self._primary is not None:
+            replace = projected.visible.copy()
+            if restart:
+                for old in self._recent_inconsistent:
+                    old_proj = project_model(self._primary.points, old, curves.primary.curve, cfg)
+                    replace |= old_proj.visible
+            else:
+                agree = projected.visible & projected.near_curve
+                fit_points = np.concatenate([self._primary.points[agree], fit_points])
+                fit_radii = np.concatenate([self._primary.radii[agree], fit_radii])
+        up_world = -frame.T_world_camera[:3, 1]
+        order = np.argsort(fit_points @ up_world)
+        segment = fit_visible_segment(fit_points[order], fit_radii[order], frame, cfg, self.rng)
+        timings["fit3d_ms"] = (time.perf_counter() - t0) * 1e3
+        if segment is None:
+            reason = (
+                "too few lifted points"
+                if len(fit_points) < cfg.min_lifted_points
+                else ("3D fit has too few inliers")
+            )
+            return self._inconsistent(report, frame, reason, t_start)
+        self._primary = splice(self._primary, replace, segment[0], segment[1], up_world)
+        if restart:
+            report.outcome = Outcome.RESTART
+            report.reason = "third inconsistent mask in a row: model re-initialised"
+        else:
+            report.reason = "initialised" if projected is None else "model agrees with mask"
+        # Paper IV: the next iteration comes 10 mm after the last *successful* one.
+        self._last_iteration_position = frame.T_world_camera[:3, 3].copy()
+        self._inconsistent_streak = 0
+        self._recent_inconsistent.clear()
+
+        # Secondary branches.
+        t0 = time.perf_counter()
+        detections = self._lift_secondaries(frames, curves)
+        report.n_secondary_detections = len(detections)
+        report.n_new_secondaries = self._secondaries.add_detections(detections, self._primary)
+        self._secondaries.update_trust(frame)
+        report.n_secondaries = len(self._secondaries.models())
+        timings["secondaries_ms"] = (time.perf_counter() - t0) * 1e3
+        timings["total_ms"] = (time.perf_counter() - t_start) * 1e3
+        return report
+
+    def _lift_secondaries(
+        self, frames: list[Frame], curves: MaskCurves
+    ) -> list[SecondaryDetection]:
+        """Lift all 2D secondary candidates in one tracking call."""
+        queries, radii, owner = [], [], []
+        for k, sec in enumerate(curves.secondaries):
+            outside = ~np.asarray(sec.inside_primary, dtype=bool)
+            queries.append(sec.samples_px[outside])
+            radii.append(sec.radii_px[outside])
+            owner.append(np.full(int(outside.sum()), k))
+        if not queries or sum(len(q) for q in queries) == 0:
+            return []
+        lifted = lift_pixels(
+            frames, np.concatenate(queries), np.concatenate(radii), self.tracker, self.config
+        )
+        owner_all = np.concatenate(owner)[lifted.index]
+        detections = []
+        for k in range(len(curves.secondaries)):
+            sel = owner_all == k
+            if sel.sum() >= self.config.secondary_min_points:
+                detections.append(SecondaryDetection(lifted.centers[sel], lifted.radii_m[sel]))
+        return detections
+
+    def _inconsistent(
+        self, report: IterationReport, frame: Frame, reason: str, t_start: float
+    ) -> IterationReport:
+        self._inconsistent_streak += 1
+        self._recent_inconsistent.append(frame)
+        report.outcome = Outcome.INCONSISTENT
+        report.reason = reason
+        report.n_secondaries = len(self._secondaries.models())
+        report.timings_ms["total_ms"] = (time.perf_counter() - t_start) * 1e3
+        return report
