@@ -19,8 +19,9 @@ DEFAULT_CLOSEST_SAMPLES = 48
 DEFAULT_NEWTON_ITERATIONS = 2
 # Dense polyline used as the arc-length table: relative length error ~1e-5 for branch-like curves.
 ARCLENGTH_TABLE_SAMPLES = 257
-# Tangents shorter than this fraction of the longest one have no direction (cusps).
-_TANGENT_EPS = 1e-9
+# Relative tolerance for degenerate geometry: tangents shorter than this fraction of the longest
+# have no direction (cusps); sample gaps below it make an interpolation singular.
+_DEGENERATE = 1e-9
 _N_CONTROL_POINTS = 4
 # Bernstein -> power basis: rows give a, b, c, d of B(t) = a t^3 + b t^2 + c t + d.
 _POWER_BASIS = np.array(
@@ -83,13 +84,19 @@ def _closest_params_batch(
     # argmin over samples of |s|^2 - 2 s.p equals that of |s - p|^2; samples on the middle axis
     # keep the reduction vectorised over the points.
     partial = (samples * samples).sum(axis=2)[:, :, None] - 2.0 * (samples @ points.T)
-    t = np.argmin(partial, axis=1) / (n_samples - 1.0)  # (B, N)
+    nearest = np.argmin(partial, axis=1)  # (B, N)
+    seed_t = nearest / (n_samples - 1.0)
+    seed_sq = np.take_along_axis(partial, nearest[:, None, :], axis=1)[:, 0, :] + np.einsum(
+        "nd,nd->n", points, points
+    )
+    if newton_iterations == 0:
+        return seed_t, np.sqrt(np.maximum(seed_sq, 0.0))
     # Coordinates first, so every array op runs over the long (B, N) axes. The power basis
     # B(t) = ((a t + b) t + c) t + d makes B, B' and B'' cheap to evaluate.
     a, b, c, d = (_POWER_BASIS @ control_points).transpose(1, 2, 0)[..., None]  # (D, B, 1)
     d = d - points.T[:, None, :]  # (D, B, N): B(t) - p = ((a t + b) t + c) t + d
     a3, b2, a6 = 3.0 * a, 2.0 * b, 6.0 * a
-    seed_t = t
+    t = seed_t
     for _ in range(newton_iterations):
         diff = ((a * t + b) * t + c) * t + d
         vel = (a3 * t + b2) * t + c
@@ -97,16 +104,13 @@ def _closest_params_batch(
         speed2 = (vel * vel).sum(axis=0)
         hess = speed2 + (diff * (a6 * t + b2)).sum(axis=0)
         # Newton where the squared distance is locally convex, Gauss-Newton elsewhere.
-        denom = np.maximum(np.where(hess > 0.0, hess, speed2), _TANGENT_EPS)
-        t = np.clip(t - grad / denom, 0.0, 1.0)
+        denom = np.where(hess > 0.0, hess, speed2)
+        step = np.divide(grad, denom, out=np.zeros_like(grad), where=denom > 0.0)
+        t = np.clip(t - step, 0.0, 1.0)
     diff = ((a * t + b) * t + c) * t + d
     sq = (diff * diff).sum(axis=0)
-    if newton_iterations > 0:  # keep the seed where refinement overshot a sharp bend
-        diff = ((a * seed_t + b) * seed_t + c) * seed_t + d
-        seed_sq = (diff * diff).sum(axis=0)
-        worse = seed_sq < sq
-        t, sq = np.where(worse, seed_t, t), np.where(worse, seed_sq, sq)
-    return t, np.sqrt(sq)
+    worse = seed_sq < sq  # keep the seed where a step overshot a sharp bend
+    return np.where(worse, seed_t, t), np.sqrt(np.maximum(np.where(worse, seed_sq, sq), 0.0))
 
 
 @lru_cache(maxsize=8)
@@ -117,7 +121,7 @@ def _seed_basis(n_samples: int) -> np.ndarray:
     return basis
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compared by identity
 class CubicBezier:
     """A cubic Bezier curve in D dimensions.
 
@@ -224,8 +228,11 @@ class CubicBezier:
         points = _check_points(points, min_count=0)
         if points.shape[1] != self.dim:
             raise ValueError(f"points must have dimension {self.dim}, got {points.shape[1]}")
-        if n_samples < 2:
-            raise ValueError(f"n_samples must be >= 2, got {n_samples}")
+        if n_samples < 2 or newton_iterations < 0:
+            raise ValueError(
+                f"need n_samples >= 2 and newton_iterations >= 0, got {n_samples} and "
+                f"{newton_iterations}"
+            )
         if len(points) == 0:
             return np.zeros(0), np.zeros(0)
         t, dist = _closest_params_batch(
@@ -244,7 +251,7 @@ class CubicBezier:
         norms = np.linalg.norm(tangents, axis=1)
         if norms.max() <= 0.0:
             return 0.0
-        unit = tangents[norms > _TANGENT_EPS * norms.max()]
+        unit = tangents[norms > _DEGENERATE * norms.max()]
         unit = unit / np.linalg.norm(unit, axis=1, keepdims=True)
         min_cos = float(np.clip((unit @ unit.T).min(), -1.0, 1.0))
         return math.degrees(math.acos(min_cos))
@@ -321,7 +328,7 @@ def fit_bezier(
     return curve
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # holds arrays: compared by identity
 class RansacFit:
     """Result of :func:`ransac_fit_bezier`.
 
@@ -349,7 +356,7 @@ def _sample_interpolants(
     gaps = np.linalg.norm(np.diff(sample, axis=1), axis=2)  # (B, 3)
     total = gaps.sum(axis=1)
     # Coincident samples make the interpolation singular: drop those draws.
-    ok = np.all(gaps > _TANGENT_EPS * np.maximum(total, _TANGENT_EPS)[:, None], axis=1)
+    ok = np.all(gaps > _DEGENERATE * total[:, None], axis=1) & (total > 0.0)
     if not np.any(ok):
         return np.zeros((0, _N_CONTROL_POINTS, points.shape[1]))
     sample, gaps, total = sample[ok], gaps[ok], total[ok]

@@ -9,8 +9,16 @@ Layout: one multi-link body for the scanned tree (base = primary, link i = secon
 for the clutter (base = clutter 0, link k - 1 = clutter k); each link has its own mesh, so the
 segmentation buffer (body + link) tells the branches apart. Measured against one body per branch
 (7 tree branches + 10 clutter objects, TinyRenderer, medians over a scan): the render times agree
-within noise (~0.1 ms) and building is a little faster, so the fewer bodies win. The OBJ and PNG
-files live in a temporary folder only while the bodies are created: pybullet reads them then.
+within noise (~0.1 ms) and building is a little faster, so the fewer bodies win.
+
+Memory: the OBJ and PNG files exist only while the bodies are created (pybullet reads them then,
+for TinyRenderer and EGL alike), in one fixed folder per process with fixed file names. pybullet
+caches meshes and textures by path for the life of the process: with the cache on, a rewritten
+file at a known path shows the *old* mesh and texture; with fresh paths every scene, memory
+grows ~1.6 MB per build. So the build turns file caching off (``enableFileCaching=0``, a
+process-wide pybullet setting) and reuses the same paths: 200 rebuilds then stay flat under
+TinyRenderer. The EGL plugin never frees its GL textures: ~1.4 MB per build (measured); long EGL
+runs should recreate the Bullet client every few hundred scenes.
 
 The background (:class:`PlanarBackground`) is not made of pybullet bodies: TinyRenderer's cost
 follows covered pixels (a full-screen textured plane costs ~12 ms a frame, reference.md), so a
@@ -22,6 +30,8 @@ parallax, and the planes never hide a body (nothing may stand below the ground o
 from __future__ import annotations
 
 import math
+import os
+import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,7 +42,13 @@ import numpy as np
 import pybullet
 
 from branch_gym.sim.bullet import Bullet
-from branch_gym.sim.camera import CameraImages, CameraSpec, check_pose, render_camera
+from branch_gym.sim.camera import (
+    CameraImages,
+    CameraSpec,
+    check_pose,
+    pixel_grid,
+    render_camera,
+)
 from branch_gym.sim.texture import BARK, FOLIAGE, GROUND, TextureConfig, make_texture, write_png
 from branch_gym.sim.tree_mesh import TubeMeshConfig, tube_mesh, write_obj
 
@@ -142,6 +158,16 @@ def _plane(
     )
 
 
+def scene_folder() -> Path:
+    """Where scene files are written during a build: one fixed folder per process.
+
+    Fixed names matter: pybullet keeps a few hundred kB per distinct mesh or texture path for
+    the life of the process (~1.6 MB per scene with fresh names, measured), but nothing when the
+    same paths are written again. One build at a time per process.
+    """
+    return Path(tempfile.gettempdir()) / f"branch_gym_scene_{os.getpid()}"
+
+
 class PlanarBackground:
     """Ground plane and backdrop wall drawn into empty pixels by homography (see module doc).
 
@@ -183,8 +209,7 @@ class PlanarBackground:
             return
         T = check_pose(T_world_camera)
         rays = T[:3, :3] @ np.linalg.inv(spec.K)  # world ray (camera z = 1) = rays @ (u, v, 1)
-        u = np.arange(spec.width, dtype=np.float32)[None, :]
-        v = np.arange(spec.height, dtype=np.float32)[:, None]
+        u, v = pixel_grid(spec)
         nearest_inverse_depth = np.full(empty.shape, 1.0 / spec.far_m, dtype=np.float32)
         nearest_plane = np.full(empty.shape, -1, dtype=np.int8)
         for index, plane in enumerate(self._planes):
@@ -192,11 +217,11 @@ class PlanarBackground:
             if height_m <= 0:  # the camera is behind the plane, which faces away from it
                 continue
             # On the plane n . (c + z r) = offset, so 1 / z = -(n . r) / height: affine in (u, v).
-            q = (plane.normal @ rays) / -height_m
-            inverse_depth = (q[0] * u + q[1] * v + q[2]).astype(np.float32)
+            q = ((plane.normal @ rays) / -height_m).astype(np.float32)
+            inverse_depth = q[0] * u + q[1] * v + q[2]
             nearer = inverse_depth > nearest_inverse_depth
-            nearest_inverse_depth[nearer] = inverse_depth[nearer]
-            nearest_plane[nearer] = index
+            np.copyto(nearest_inverse_depth, inverse_depth, where=nearer)
+            np.copyto(nearest_plane, np.int8(index), where=nearer)
         for index, plane in enumerate(self._planes):
             mask = (nearest_plane == index) & empty
             rows = np.flatnonzero(mask.any(axis=1))
@@ -206,7 +231,8 @@ class PlanarBackground:
             warped = self._warp(plane, T, spec, top, bottom)
             cv2.copyTo(warped, mask[top:bottom].view(np.uint8), rgb[top:bottom])
         sky = (nearest_plane < 0) & empty
-        rgb[sky] = self.config.sky_rgb
+        if sky.any():
+            rgb[sky] = self.config.sky_rgb
         depth = np.divide(
             1.0, nearest_inverse_depth, where=nearest_plane >= 0, out=np.full_like(depth_m, np.inf)
         )
@@ -270,8 +296,12 @@ class TreeScene:
         self.bullet = bullet
         self.config = config or SceneConfig()
         self.label_of: dict[tuple[int, int], int] = {}
-        with tempfile.TemporaryDirectory(prefix="branch_gym_scene_") as folder:
-            bark_png = write_png(make_texture(rng, self.config.bark), Path(folder) / "bark.png")
+        # Fresh file contents behind fixed file names (module docstring, "Memory").
+        bullet.p.setPhysicsEngineParameter(enableFileCaching=0)
+        folder = scene_folder()
+        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            bark_png = write_png(make_texture(rng, self.config.bark), folder / "bark.png")
             tree_id = self._add_body(
                 [tree.primary, *tree.secondaries], PRIMARY_LABEL, self.config.tree_mesh,
                 bark_png, self.config.collision,
@@ -284,6 +314,8 @@ class TreeScene:
                     bark_png, collision=False,
                 )  # fmt: skip
                 self.clutter_body_ids = (clutter_id,)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
         background = self.config.background
         self.background = PlanarBackground(background, rng) if background.enabled else None
 

@@ -30,6 +30,7 @@ import numpy as np
 TILE_WIDTH_M = 2.0 * math.pi * 0.005
 _DENSE_STEP_M = 0.001  # working resolution of the centerline (the ground truth is 1 mm dense)
 _MIN_SEGMENT_M = 1e-9  # shorter steps are duplicate points
+_SAME_TANGENT_SQUARED = 1e-18  # |t1 - reflected t0|^2 below this: no second reflection needed
 
 
 @dataclass(frozen=True)
@@ -121,7 +122,7 @@ def tube_mesh(
         + np.sin(angles)[None, :, None] * binormals[:, None, :]
     )  # (R, S+1, 3): counter-clockwise about the tangent
     wall = centres[:, None, :] + ring_radii[:, None, None] * radial
-    circumference_m = 2.0 * math.pi * float(np.mean(ring_radii))
+    circumference_m = 2.0 * math.pi * float(np.mean(dense_radii))  # mean over arc length
     wraps = max(1, round(circumference_m / config.tile_width_m))
     u = wraps * np.arange(per_ring) / sides
     v = ring_arc * wraps / circumference_m
@@ -177,25 +178,12 @@ def rotation_minimising_frames(centres: np.ndarray, tangents: np.ndarray) -> np.
         c2 = float(v2 @ v2)
         n = (
             reflected_normal - (2.0 / c2) * float(v2 @ reflected_normal) * v2
-            if c2 > 1e-18
+            if c2 > _SAME_TANGENT_SQUARED
             else reflected_normal
         )
         n = n - float(n @ tangents[i + 1]) * tangents[i + 1]  # remove round-off drift
         normals[i + 1] = n / np.linalg.norm(n)
     return normals
-
-
-def merge_meshes(meshes: list[TubeMesh]) -> TubeMesh:
-    """One mesh holding all of ``meshes`` (face indices shifted)."""
-    if not meshes:
-        raise ValueError("merge_meshes needs at least one mesh")
-    offsets = np.cumsum([0] + [len(mesh.vertices) for mesh in meshes[:-1]])
-    return TubeMesh(
-        vertices=np.vstack([mesh.vertices for mesh in meshes]),
-        normals=np.vstack([mesh.normals for mesh in meshes]),
-        uvs=np.vstack([mesh.uvs for mesh in meshes]),
-        faces=np.vstack([m.faces + off for m, off in zip(meshes, offsets, strict=True)]),
-    )
 
 
 def write_obj(mesh: TubeMesh, path: Path, texture_png: Path | None = None) -> Path:
@@ -288,7 +276,7 @@ def _farthest_from_chord(points: np.ndarray, first: int, last: int) -> tuple[int
     """Index and distance of the point of ``points[first:last+1]`` farthest from that chord."""
     chord = points[last] - points[first]
     offsets = points[first : last + 1] - points[first]
-    along = np.clip(offsets @ chord / max(float(chord @ chord), _MIN_SEGMENT_M), 0.0, 1.0)
+    along = np.clip(offsets @ chord / max(float(chord @ chord), _MIN_SEGMENT_M**2), 0.0, 1.0)
     distances = np.linalg.norm(offsets - along[:, None] * chord, axis=1)
     worst = int(np.argmax(distances))
     return first + worst, float(distances[worst])
