@@ -28,6 +28,7 @@ SB metrics NaN; no in-scope ground-truth branch -> percentages NaN); :func:`aggr
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -191,6 +192,46 @@ class TreeMetrics:
             "scanned_top_z_m": self.scanned_top_z_m,
             "matches": json.dumps([list(pair) for pair in self.matches]),
         }
+
+    def to_json_dict(self) -> dict:
+        """Lossless, strict-JSON form: every constructor field, arrays included.
+
+        Floats keep full precision (``json`` writes round-trip ``repr``); non-finite values are
+        written as the strings ``"nan"``, ``"inf"`` and ``"-inf"``, so the result passes
+        ``json.dumps(..., allow_nan=False)``. Derived fields are recomputed on load.
+        """
+        return {
+            "pb_residuals_m": [_float_to_json(v) for v in self.pb_residuals_m.tolist()],
+            "pb_radius_errors_m": [_float_to_json(v) for v in self.pb_radius_errors_m.tolist()],
+            "sb_residuals_m": [_float_to_json(v) for v in self.sb_residuals_m.tolist()],
+            "sb_radius_errors_m": [_float_to_json(v) for v in self.sb_radius_errors_m.tolist()],
+            "matches": [[int(j), int(i)] for j, i in self.matches],
+            "n_gt": int(self.n_gt),
+            "n_matched": int(self.n_matched),
+            "n_missed": int(self.n_missed),
+            "n_spurious": int(self.n_spurious),
+            "n_duplicates": int(self.n_duplicates),
+            "n_ignored_reconstructed": int(self.n_ignored_reconstructed),
+            "scanned_top_z_m": _float_to_json(float(self.scanned_top_z_m)),
+        }
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> TreeMetrics:
+        """Inverse of :meth:`to_json_dict` (also after a ``json.dumps`` / ``json.loads`` trip)."""
+        return cls(
+            pb_residuals_m=_array_from_json(data["pb_residuals_m"]),
+            pb_radius_errors_m=_array_from_json(data["pb_radius_errors_m"]),
+            sb_residuals_m=_array_from_json(data["sb_residuals_m"]),
+            sb_radius_errors_m=_array_from_json(data["sb_radius_errors_m"]),
+            matches=[(int(j), int(i)) for j, i in data["matches"]],
+            n_gt=int(data["n_gt"]),
+            n_matched=int(data["n_matched"]),
+            n_missed=int(data["n_missed"]),
+            n_spurious=int(data["n_spurious"]),
+            n_duplicates=int(data["n_duplicates"]),
+            n_ignored_reconstructed=int(data["n_ignored_reconstructed"]),
+            scanned_top_z_m=float(data["scanned_top_z_m"]),
+        )
 
 
 def evaluate(
@@ -414,6 +455,15 @@ def _angle_rad(a: np.ndarray, b: np.ndarray) -> float:
     """Angle in radians between two non-zero 3-vectors."""
     cosine = np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b))
     return float(np.arccos(np.clip(cosine, -1.0, 1.0)))
+
+
+def _float_to_json(value: float) -> float | str:
+    """A finite float as is; NaN and infinities as "nan", "inf", "-inf" (``float`` reads them)."""
+    return value if math.isfinite(value) else str(value)
+
+
+def _array_from_json(values: list[float | str]) -> np.ndarray:
+    return np.array([float(v) for v in values], dtype=float)
 
 
 def _mean(values: np.ndarray) -> float:

@@ -1,0 +1,127 @@
+"""The primary-branch following controller (paper section V).
+
+``v = grad + k_u (u - w/2) + k_z (z - z_target)``, scaled to the set speed: ``(u, v)`` is the
+projected primary point closest to image row h/2, ``z`` its camera depth and ``grad`` the
+centerline tangent there (pointing up the image). Errors are normalised (reference.md: the
+authors' gains k_u = k_z = 1 act on normalised errors). Before any model exists (or when none of
+it is in view) the camera moves straight up. A small orientation term keeps the camera level
+(image up = world up), which the paper's scan assumes and which numeric integration would drift.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from recon.camera import CameraIntrinsics, invert_pose, project_points, transform_points
+from recon.model import BranchModel
+
+WORLD_UP = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass(frozen=True)
+class FollowControllerConfig:
+    """Gains and set points.
+
+    Attributes:
+        speed_mps: Camera speed (reference.md: 2.5 cm/s in the authors' simulator).
+        k_u: Gain on the horizontal pixel error, normalised by w/2 (authors: 1).
+        k_z: Gain on the depth error, normalised by z_target (authors: 1).
+        z_target_m: Camera-to-branch distance (paper V: 0.20 m).
+        k_level_per_s: Gain (1/s) of the term that keeps the image upright; our choice: corrects
+            a small tilt within ~1 s, far slower than the motion it accompanies.
+    """
+
+    speed_mps: float = 0.025
+    k_u: float = 1.0
+    k_z: float = 1.0
+    z_target_m: float = 0.20
+    k_level_per_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f"FollowControllerConfig.{f.name} must be >= 0, got {value}")
+        for name in ("speed_mps", "z_target_m"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"FollowControllerConfig.{name} must be positive")
+
+
+@dataclass
+class FollowCommand:
+    """One controller output.
+
+    Attributes:
+        twist_camera: (6,) [v (m/s), w (rad/s)] in the camera frame.
+        look_at_world: (3,) the followed primary point p (world), or None without a model in view.
+        pixel_error: Normalised horizontal error (u - w/2) / (w/2) (0 without a model).
+        depth_error: Normalised depth error (z - z_target) / z_target (0 without a model).
+    """
+
+    twist_camera: np.ndarray
+    look_at_world: np.ndarray | None
+    pixel_error: float = 0.0
+    depth_error: float = 0.0
+
+
+class PrimaryBranchController:
+    """Follows the 3D primary branch model up the tree at a set distance, centred in the image."""
+
+    def __init__(
+        self, config: FollowControllerConfig | None = None, intrinsics: CameraIntrinsics | None = None
+    ) -> None:
+        self.config = config or FollowControllerConfig()
+        self.intrinsics = intrinsics or CameraIntrinsics.from_fov()
+
+    def look_at_point(
+        self, primary: BranchModel | None, T_world_camera: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """The model point projected closest to row h/2: (pixel (2,), camera-frame point (3,), index)."""
+        if primary is None or len(primary.points) < 2:
+            return None
+        intr = self.intrinsics
+        pixels, depth = project_points(primary.points, T_world_camera, intr)
+        in_view = (depth > 0) & np.isfinite(pixels[:, 0])
+        in_view &= (pixels[:, 0] >= 0) & (pixels[:, 0] <= intr.width - 1)
+        in_view &= (pixels[:, 1] >= 0) & (pixels[:, 1] <= intr.height - 1)
+        if not in_view.any():
+            return None
+        candidates = np.flatnonzero(in_view)
+        best = candidates[np.argmin(np.abs(pixels[candidates, 1] - intr.height / 2.0))]
+        p_camera = transform_points(invert_pose(T_world_camera), primary.points[best : best + 1])[0]
+        return pixels[best], p_camera, int(best)
+
+    def command(self, primary: BranchModel | None, T_world_camera: np.ndarray) -> FollowCommand:
+        """The camera twist for this control step."""
+        cfg = self.config
+        R = T_world_camera[:3, :3]
+        w_camera = R.T @ self._level_correction(R)
+        found = self.look_at_point(primary, T_world_camera)
+        if found is None:
+            v_camera = R.T @ WORLD_UP * cfg.speed_mps
+            return FollowCommand(np.concatenate([v_camera, w_camera]), None)
+        pixel, p_camera, index = found
+        T_camera_world = invert_pose(T_world_camera)
+        ends = primary.points[[max(index - 1, 0), min(index + 1, len(primary.points) - 1)]]
+        ends_camera = transform_points(T_camera_world, ends)
+        grad = ends_camera[1] - ends_camera[0]
+        if grad[1] > 0:  # point up the image (camera -y)
+            grad = -grad
+        grad /= max(np.linalg.norm(grad), 1e-12)
+        pixel_error = (pixel[0] - self.intrinsics.width / 2.0) / (self.intrinsics.width / 2.0)
+        depth_error = (p_camera[2] - cfg.z_target_m) / cfg.z_target_m
+        v = grad + cfg.k_u * pixel_error * np.array([1.0, 0.0, 0.0])
+        v = v + cfg.k_z * depth_error * np.array([0.0, 0.0, 1.0])
+        v_camera = v / max(np.linalg.norm(v), 1e-12) * cfg.speed_mps
+        look_at = primary.points[index].copy()
+        return FollowCommand(
+            np.concatenate([v_camera, w_camera]), look_at, float(pixel_error), float(depth_error)
+        )
+
+    def _level_correction(self, R_world_camera: np.ndarray) -> np.ndarray:
+        """World angular velocity turning the image's down axis (camera y) onto world -z."""
+        down = R_world_camera[:, 1]
+        axis = np.cross(down, -WORLD_UP)
+        return self.config.k_level_per_s * axis

@@ -1,0 +1,255 @@
+"""Run every policy on the same trees, in a process pool, resuming from saved trials.
+
+Each (policy, tree seed) pair is one trial: ``branch_gym.scan.run_scan(seed, policy, scan)``.
+A finished trial is saved at once (:mod:`branch_gym.evaluation.trials`); a later run with the same
+output folder loads the trials already there instead of re-running them, so an interrupted
+evaluation loses at most the trials that were running. Trials are only comparable under one scan
+configuration: the folder records its configuration hash, and a run with another is refused.
+
+Results do not depend on the number of workers or on completion order: every trial is a pure
+function of (seed, policy, scan configuration), and records are returned sorted by policy (in the
+given order) then seed.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import logging
+import multiprocessing
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from agents.rotation import make_policy
+from branch_gym.evaluation.trials import (
+    TRIALS_DIR,
+    TrialRecord,
+    config_hash,
+    config_to_dict,
+    load_trial,
+    policy_slug,
+    save_trial,
+    trial_path,
+    write_json_atomic,
+)
+from branch_gym.scan import ScanConfig, run_scan
+
+logger = logging.getLogger(__name__)
+
+CONFIG_FILE = "config.json"
+TrialKey = tuple[str, int]  # (policy spec, tree seed)
+
+
+class ConfigMismatchError(RuntimeError):
+    """The output folder holds trials run under another scan configuration."""
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """One evaluation: every policy on trees ``seed .. seed + trees - 1``.
+
+    Attributes:
+        policies: Rotation policy specs (``agents.rotation.make_policy``), in table order.
+        trees: Number of trees (tree seeds) per policy.
+        seed: First tree seed.
+        workers: Worker processes; 1 runs the trials in this process.
+        scan: Scan configuration shared by all trials.
+    """
+
+    policies: tuple[str, ...]
+    trees: int
+    seed: int = 0
+    workers: int = 1
+    scan: ScanConfig = field(default_factory=ScanConfig)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "policies", tuple(self.policies))
+        validate_policies(self.policies)
+        if self.trees < 1:
+            raise ValueError(f"trees must be >= 1, got {self.trees}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.workers < 1:
+            raise ValueError(f"workers must be >= 1, got {self.workers}")
+
+    @property
+    def seeds(self) -> range:
+        """The tree seeds, the same for every policy."""
+        return range(self.seed, self.seed + self.trees)
+
+    @property
+    def keys(self) -> list[TrialKey]:
+        """All trials, policy order then seed."""
+        return [(policy, seed) for policy in self.policies for seed in self.seeds]
+
+    @property
+    def scan_hash(self) -> str:
+        return config_hash(self.scan)
+
+    def to_json_dict(self) -> dict:
+        """What determines the results (the worker count does not)."""
+        return {
+            "policies": list(self.policies),
+            "trees": self.trees,
+            "seed": self.seed,
+            "seeds": list(self.seeds),
+            "scan": config_to_dict(self.scan),
+            "scan_config_hash": self.scan_hash,
+        }
+
+
+def validate_policies(policies: Sequence[str]) -> None:
+    """Check every spec before any work.
+
+    Raises:
+        ValueError: no policy, an unknown or malformed spec, a repeated spec, or two specs that
+            would share a trial folder.
+    """
+    if not policies:
+        raise ValueError("at least one policy is needed")
+    slugs: dict[str, str] = {}
+    for policy in policies:
+        make_policy(policy)  # raises ValueError naming the valid forms
+        slug = policy_slug(policy)
+        if slug in slugs:
+            raise ValueError(
+                f"policies {slugs[slug]!r} and {policy!r} are repeated or share the trial "
+                f"folder name {slug!r}"
+            )
+        slugs[slug] = policy
+
+
+def check_output_folder(config: EvalConfig, out: Path) -> None:
+    """Record the scan configuration in ``out``, or refuse a folder made under another one.
+
+    Raises:
+        ConfigMismatchError: ``out`` holds trials of a different scan configuration.
+    """
+    path = out / TRIALS_DIR / CONFIG_FILE
+    ours = {"scan_config_hash": config.scan_hash, "scan": config_to_dict(config.scan)}
+    if path.exists():
+        theirs = json.loads(path.read_text())
+        if theirs.get("scan_config_hash") != ours["scan_config_hash"]:
+            raise ConfigMismatchError(_mismatch_message(out, theirs, ours))
+        return
+    write_json_atomic(path, ours)
+
+
+def _mismatch_message(out: Path, theirs: dict, ours: dict) -> str:
+    old, new = theirs.get("scan", {}), ours["scan"]
+    changed = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
+    details = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in changed) or "unknown"
+    return (
+        f"{out} holds trials of a different scan configuration (hash "
+        f"{theirs.get('scan_config_hash')} there, {ours['scan_config_hash']} now; {details}). "
+        "Use another --out, or delete its trials/ folder to start over."
+    )
+
+
+def pending_trials(config: EvalConfig, out: Path) -> list[TrialKey]:
+    """The trials of ``config`` that have no saved file in ``out`` yet, in table order."""
+    return [key for key in config.keys if not trial_path(out, *key).exists()]
+
+
+def run_trials(
+    config: EvalConfig,
+    out: Path,
+    keys: Sequence[TrialKey],
+    on_done: Callable[[TrialKey], None] | None = None,
+) -> list[TrialKey]:
+    """Run and save the given trials (a process pool when ``config.workers > 1``).
+
+    Args:
+        config: The evaluation.
+        out: Output folder; each trial is saved there as soon as it finishes.
+        keys: The trials to run (e.g. :func:`pending_trials`).
+        on_done: Called after each trial is saved (e.g. to advance a progress bar).
+
+    Returns:
+        The trials run, in completion order.
+
+    Raises:
+        RuntimeError: a trial raised; the trials already finished stay saved.
+    """
+    on_done = on_done or (lambda key: None)
+    tasks = [_Task(policy, seed, config.scan, config.scan_hash, out) for policy, seed in keys]
+    done: list[TrialKey] = []
+    if config.workers == 1 or len(tasks) <= 1:
+        for task in tasks:
+            done.append(_run_task(task))
+            on_done(done[-1])
+        return done
+    context = multiprocessing.get_context("spawn")
+    workers = min(config.workers, len(tasks))
+    with cf.ProcessPoolExecutor(workers, mp_context=context) as pool:
+        futures = {pool.submit(_run_task, task): task for task in tasks}
+        try:
+            for future in cf.as_completed(futures):
+                done.append(future.result())
+                on_done(done[-1])
+        except BaseException:  # a failed trial or Ctrl-C: drop the queue, keep what is saved
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
+    return done
+
+
+def load_records(config: EvalConfig, out: Path) -> list[TrialRecord]:
+    """All trials of ``config`` from ``out``, policy order then seed.
+
+    Raises:
+        FileNotFoundError: a trial has not been run.
+        ConfigMismatchError: a trial file was made under another scan configuration.
+        ValueError: a trial file is unreadable, or holds another trial than its name says.
+    """
+    records = []
+    for policy, seed in config.keys:
+        path = trial_path(out, policy, seed)
+        if not path.exists():
+            raise FileNotFoundError(f"trial {policy!r} seed {seed} has not been run ({path})")
+        record = load_trial(path)
+        if record.config_hash != config.scan_hash:
+            raise ConfigMismatchError(
+                f"trial file {path} was run under scan configuration {record.config_hash}, "
+                f"not {config.scan_hash}; use another --out or delete the file"
+            )
+        if (record.policy, record.seed) != (policy, seed):
+            raise ValueError(
+                f"trial file {path} holds policy {record.policy!r} seed {record.seed}, "
+                f"expected {policy!r} seed {seed}"
+            )
+        records.append(record)
+    return records
+
+
+@dataclass(frozen=True)
+class _Task:
+    """Everything a worker process needs for one trial (picklable)."""
+
+    policy: str
+    seed: int
+    scan: ScanConfig
+    scan_hash: str
+    out: Path
+
+
+def _run_task(task: _Task) -> TrialKey:
+    """Run one scan and save it (in a worker process, or in this one)."""
+    start = time.perf_counter()
+    try:
+        result = run_scan(task.seed, task.policy, task.scan)
+    except Exception as exc:
+        raise RuntimeError(f"trial {task.policy!r} seed {task.seed} raised: {exc!r}") from exc
+    save_trial(
+        trial_path(task.out, task.policy, task.seed),
+        TrialRecord.from_scan(result, task.scan_hash),
+    )
+    logger.info(
+        "trial %s seed %d: %.1f s, failure %s",
+        task.policy,
+        task.seed,
+        time.perf_counter() - start,
+        result.failure,
+    )
+    return task.policy, task.seed

@@ -1,0 +1,187 @@
+"""One saved trial: what a scan produced, as a strict-JSON file that can be re-aggregated.
+
+A trial file ``OUT/trials/<policy-slug>/<seed>.json`` holds the scan's flat row (for
+``trials.csv``), the full metrics (lossless, :meth:`recon.metrics.TreeMetrics.to_json_dict`), the
+reconstruction and the ground truth (for the figures), and the hash of the scan configuration it
+was run with. Files are written atomically (temporary file, then rename): a killed run leaves
+either a whole trial file or none.
+
+Non-finite floats are written as the strings ``"nan"``, ``"inf"`` and ``"-inf"`` (strict JSON;
+``float()`` reads them back, and ``csv`` writes a float NaN as ``nan`` too).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+import tempfile
+from dataclasses import asdict, dataclass, is_dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from branch_gym.sim.trees import TreeGT
+from recon.metrics import TreeMetrics
+from recon.model import TreeModel
+
+TRIAL_FORMAT = 1
+TRIALS_DIR = "trials"
+Scalar = float | int | str | bool | None
+
+
+@dataclass
+class TrialRecord:
+    """A finished trial, as saved and reloaded.
+
+    Attributes:
+        policy: Rotation policy spec, exactly as given on the command line.
+        seed: Tree seed.
+        config_hash: :func:`config_hash` of the scan configuration the trial ran with.
+        row: The scan's flat row (``ScanResult.to_row()``), non-finite floats as strings.
+        metrics: The trial's evaluation.
+        model: The reconstruction.
+        truth: The ground-truth tree, without its background clutter (not scored, not plotted).
+        scan_time_s: Simulated scan duration, rotations included.
+        rotations: Rotation moves performed.
+        failure: The failure reason, or None when the scan reached its end height.
+    """
+
+    policy: str
+    seed: int
+    config_hash: str
+    row: dict[str, Scalar]
+    metrics: TreeMetrics
+    model: TreeModel
+    truth: TreeGT
+    scan_time_s: float
+    rotations: int
+    failure: str | None
+
+    @classmethod
+    def from_scan(cls, result: Any, config_hash: str) -> TrialRecord:
+        """Build a record from a ``branch_gym.scan.ScanResult``."""
+        truth = result.truth
+        return cls(
+            policy=str(result.policy),
+            seed=int(result.seed),
+            config_hash=config_hash,
+            row={str(k): json_scalar(v) for k, v in result.to_row().items()},
+            metrics=result.metrics,
+            model=result.model,
+            truth=TreeGT(truth.primary, list(truth.secondaries), [], truth.seed),
+            scan_time_s=float(result.scan_time_s),
+            rotations=int(result.rotations),
+            failure=None if result.failure is None else str(result.failure),
+        )
+
+    def to_json_dict(self) -> dict:
+        """Strict-JSON form (passes ``json.dumps(..., allow_nan=False)``)."""
+        return {
+            "format": TRIAL_FORMAT,
+            "policy": self.policy,
+            "seed": self.seed,
+            "config_hash": self.config_hash,
+            "scan_time_s": json_scalar(self.scan_time_s),
+            "rotations": self.rotations,
+            "failure": self.failure,
+            "row": self.row,
+            "metrics": self.metrics.to_json_dict(),
+            "model": self.model.to_dict(),
+            "truth": self.truth.to_dict(),
+        }
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> TrialRecord:
+        """Inverse of :meth:`to_json_dict`."""
+        if data.get("format") != TRIAL_FORMAT:
+            raise ValueError(f"unknown trial file format {data.get('format')!r}")
+        return cls(
+            policy=str(data["policy"]),
+            seed=int(data["seed"]),
+            config_hash=str(data["config_hash"]),
+            row=dict(data["row"]),
+            metrics=TreeMetrics.from_json_dict(data["metrics"]),
+            model=TreeModel.from_dict(data["model"]),
+            truth=TreeGT.from_dict(data["truth"]),
+            scan_time_s=float(data["scan_time_s"]),
+            rotations=int(data["rotations"]),
+            failure=data["failure"],
+        )
+
+
+def json_scalar(value: Any) -> Scalar:
+    """A row value as a strict-JSON scalar: numpy scalars unwrapped, non-finite floats as strings.
+
+    Raises:
+        TypeError: not a scalar (lists and dicts do not belong in a flat row).
+    """
+    if value is None or isinstance(value, bool | str):
+        return value
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        value = float(value)
+        return value if math.isfinite(value) else str(value)
+    raise TypeError(f"row values must be scalars, got {type(value).__name__}: {value!r}")
+
+
+def policy_slug(policy: str) -> str:
+    """Directory name for a policy spec: ``periodic:22.5:1.5`` -> ``periodic_22.5_1.5``."""
+    return re.sub(r"[^A-Za-z0-9.\-]+", "_", policy).strip("_") or "_"
+
+
+def trial_path(out: Path, policy: str, seed: int) -> Path:
+    """Where the trial of ``policy`` on tree ``seed`` is saved."""
+    return out / TRIALS_DIR / policy_slug(policy) / f"{seed}.json"
+
+
+def config_to_dict(config: Any) -> dict:
+    """A (possibly nested) config dataclass as a JSON-able dict."""
+    if not is_dataclass(config):
+        raise TypeError(f"expected a dataclass config, got {type(config).__name__}")
+    return json.loads(json.dumps(asdict(config), sort_keys=True, default=str))
+
+
+def config_hash(config: Any) -> str:
+    """Short stable hash of a config dataclass: trials are comparable only under equal hashes."""
+    text = json.dumps(config_to_dict(config), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """Write strict JSON to ``path`` so that readers see the old file or the new one, whole."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps(data, allow_nan=False)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def save_trial(path: Path, record: TrialRecord) -> None:
+    """Save a trial atomically."""
+    write_json_atomic(path, record.to_json_dict())
+
+
+def load_trial(path: Path) -> TrialRecord:
+    """Load a saved trial.
+
+    Raises:
+        ValueError: the file is not a readable trial file (its path is in the message).
+    """
+    try:
+        return TrialRecord.from_json_dict(json.loads(path.read_text()))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"cannot read trial file {path}: {exc}; delete it to re-run it") from exc

@@ -1,0 +1,371 @@
+"""The one scan loop: world, perception (recon) and the follow controller, advanced together.
+
+:class:`ScanSession` is what both the Gymnasium environment and ``eval.py`` drive. One
+:meth:`ScanSession.step` takes a target rotation angle, rotates the camera about the branch if the
+angle changed (rotating is motion at the set speed: it costs scan time), then follows the primary
+branch until the modeler has run its next iteration. :func:`run_scan` runs a whole scan with a
+rotation policy and scores it against the ground truth.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import Counter
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from branch_gym.control import FollowControllerConfig, PrimaryBranchController
+from branch_gym.sim.camera import CameraSpec
+from branch_gym.sim.segmentation import make_segmenter
+from branch_gym.sim.trees import TreeGT
+from branch_gym.sim.world import World, WorldConfig
+from recon.camera import CameraIntrinsics
+from recon.config import ModelerConfig
+from recon.frame import Frame
+from recon.metrics import TreeMetrics, evaluate
+from recon.model import TreeModel
+from recon.modeler import IterationReport, Modeler, Outcome
+from recon.tracking import DepthOracleTracker, LucasKanadeTracker, PointTracker
+
+logger = logging.getLogger(__name__)
+
+TRACKERS = ("lk", "oracle")
+
+
+@dataclass(frozen=True)
+class ScanConfig:
+    """One scan's settings.
+
+    Attributes:
+        speed_mps: Camera speed while following and rotating (reference.md: 2.5 cm/s in sim).
+        end_height_m: The scan ends when the camera reaches this height (paper V-A: 0.75 m).
+        control_dt_s: Control period (s); the robot integrates in sub-steps of its own.
+        tracker: "lk" (Lucas-Kanade on the rendered images, the default) or "oracle" (exact
+            tracks from the renderer's depth, for ablations and fast training).
+        segmenter: "gt" or "noisy:mild" | "noisy:moderate" | "noisy:severe".
+        lost_branch_iterations: Non-consistent iterations in a row that end the scan as
+            "lost_branch" (our choice: ~2 cm of travel without a usable mask).
+        max_scan_time_s: Simulated time limit ("timeout"); our choice: 5x a straight scan.
+        rotation_tolerance_deg: Target angles closer than this to the current one are no move.
+        controller: Follow controller gains (speed is taken from ``speed_mps``).
+        modeler: Reconstruction thresholds.
+        world: The simulated world.
+    """
+
+    speed_mps: float = 0.025
+    end_height_m: float = 0.75
+    control_dt_s: float = 1.0 / 60.0
+    tracker: str = "lk"
+    segmenter: str = "gt"
+    lost_branch_iterations: int = 20
+    max_scan_time_s: float = 100.0
+    rotation_tolerance_deg: float = 0.5
+    controller: FollowControllerConfig = field(default_factory=FollowControllerConfig)
+    modeler: ModelerConfig = field(default_factory=ModelerConfig)
+    world: WorldConfig = field(default_factory=WorldConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("speed_mps", "control_dt_s", "max_scan_time_s", "rotation_tolerance_deg"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"ScanConfig.{name} must be positive, got {value}")
+        if not self.world.scan_start_height_m < self.end_height_m:
+            raise ValueError(
+                f"ScanConfig.end_height_m ({self.end_height_m}) must be above the start height "
+                f"({self.world.scan_start_height_m})"
+            )
+        if self.tracker not in TRACKERS:
+            raise ValueError(f"ScanConfig.tracker must be one of {TRACKERS}, got {self.tracker!r}")
+        make_segmenter(self.segmenter)  # raises a ValueError naming the valid segmenters
+        if self.lost_branch_iterations < 1:
+            raise ValueError("ScanConfig.lost_branch_iterations must be >= 1")
+
+    def replace(self, **changes: object) -> ScanConfig:
+        """A copy with some fields changed."""
+        return replace(self, **changes)
+
+
+def intrinsics_from_spec(spec: CameraSpec) -> CameraIntrinsics:
+    """recon's intrinsics for the simulator's camera."""
+    return CameraIntrinsics(spec.width, spec.height, spec.fx, spec.fy, spec.cx, spec.cy)
+
+
+def make_tracker(name: str) -> PointTracker:
+    """"lk" or "oracle"."""
+    if name == "lk":
+        return LucasKanadeTracker()
+    if name == "oracle":
+        return DepthOracleTracker()
+    raise ValueError(f"unknown tracker {name!r}: expected one of {TRACKERS}")
+
+
+@dataclass
+class StepResult:
+    """What one :meth:`ScanSession.step` did.
+
+    Attributes:
+        reports: Modeler iterations run during the step (rotation included), oldest first.
+        done: The scan is over (end height or failure).
+        rotated: A rotation move was performed.
+    """
+
+    reports: list[IterationReport]
+    done: bool
+    rotated: bool = False
+
+
+class ScanSession:
+    """A reusable scan: ``reset(seed)``, then ``step(angle)`` until ``done``, then ``result()``."""
+
+    def __init__(self, config: ScanConfig | None = None) -> None:
+        self.config = config or ScanConfig()
+        self.world = World(self.config.world)
+        self.intrinsics = intrinsics_from_spec(self.config.world.camera)
+        self.modeler = Modeler(make_tracker(self.config.tracker), self.config.modeler)
+        self.segmenter = make_segmenter(self.config.segmenter)
+        controller_config = replace(self.config.controller, speed_mps=self.config.speed_mps)
+        self.controller = PrimaryBranchController(controller_config, self.intrinsics)
+        self.vertical_fov_m = self.intrinsics.vertical_fov_length_m(controller_config.z_target_m)
+        self.tree: TreeGT | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+    def reset(self, seed: int, tree: TreeGT | None = None) -> TreeGT:
+        """Start a scan of the tree of ``seed`` from the home pose."""
+        self.tree = self.world.reset(seed, tree)
+        self.modeler.reset(seed)
+        self._segment_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
+        self.scan_time_s = 0.0
+        self.angle_deg = 0.0
+        self.rotations = 0
+        self.done = False
+        self.failure: str | None = None
+        self.stop_reason: str | None = None
+        self.reports: list[IterationReport] = []
+        self._non_consistent_streak = 0
+        self._rotation_end_height_m = self.world.T_world_camera[2, 3]
+        self._wall_start = time.perf_counter()
+        self._observe()
+        return self.tree
+
+    def close(self) -> None:
+        self.world.close()
+
+    # ------------------------------------------------------------------ state
+    @property
+    def camera_height_m(self) -> float:
+        return float(self.world.T_world_camera[2, 3])
+
+    @property
+    def travel_since_rotation_m(self) -> float:
+        """Vertical camera travel since the last rotation ended (or the scan started)."""
+        return self.camera_height_m - self._rotation_end_height_m
+
+    @property
+    def progress(self) -> float:
+        """Fraction of the scan height range covered, in [0, 1]."""
+        start = self.config.world.scan_start_height_m
+        span = self.config.end_height_m - start
+        return float(np.clip((self.camera_height_m - start) / span, 0.0, 1.0))
+
+    @property
+    def model(self) -> TreeModel:
+        return self.modeler.model
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, target_angle_deg: float) -> StepResult:
+        """Rotate to ``target_angle_deg`` if it differs, then follow until the next iteration."""
+        if self.tree is None:
+            raise RuntimeError("ScanSession.reset(seed) must be called before step()")
+        if self.done:
+            raise RuntimeError("the scan is over: call reset(seed) to start a new one")
+        if not math.isfinite(target_angle_deg):
+            raise ValueError(f"target_angle_deg must be finite, got {target_angle_deg}")
+        start = len(self.reports)
+        rotated = False
+        if abs(target_angle_deg - self.angle_deg) > self.config.rotation_tolerance_deg:
+            rotated = True
+            self._rotate_to(target_angle_deg)
+        n_before = len(self.reports)
+        while not self.done and len(self.reports) == n_before:
+            command = self.controller.command(self.model.primary, self.world.T_world_camera)
+            self._move(command.twist_camera, self.config.control_dt_s)
+        return StepResult(self.reports[start:], self.done, rotated)
+
+    def _rotate_to(self, target_angle_deg: float) -> None:
+        """Orbit the camera about the world-vertical axis through the followed branch point."""
+        from branch_gym.sim.robot import orbit_camera_twist
+
+        T = self.world.T_world_camera
+        found = self.controller.look_at_point(self.model.primary, T)
+        if found is not None:
+            pivot = self.model.primary.points[found[2]].copy()
+        else:  # no model in view: pivot z_target ahead on the optical axis
+            pivot = T[:3, 3] + T[:3, 2] * self.controller.config.z_target_m
+        pivot[2] = T[2, 3]
+        radius_m = max(float(np.linalg.norm(T[:2, 3] - pivot[:2])), 1e-3)
+        remaining = math.radians(target_angle_deg - self.angle_deg)
+        yaw_rate = math.copysign(self.config.speed_mps / radius_m, remaining)
+        heading = _heading_rad(T)
+        while not self.done and abs(remaining) > 1e-6:
+            dt = min(self.config.control_dt_s, abs(remaining / yaw_rate))
+            twist = orbit_camera_twist(self.world.T_world_camera, pivot, yaw_rate)
+            if not self._move(twist, dt):
+                break
+            new_heading = _heading_rad(self.world.T_world_camera)
+            turned = math.remainder(new_heading - heading, math.tau)
+            heading = new_heading
+            remaining -= turned
+            self.angle_deg += math.degrees(turned)
+        self.rotations += 1
+        self._rotation_end_height_m = self.camera_height_m
+
+    def _move(self, twist_camera: np.ndarray, dt_s: float) -> bool:
+        """Apply one control step, feed the modeler, check the stop conditions."""
+        status = self.world.apply_camera_twist(twist_camera, dt_s)
+        if not status.ok:
+            self._stop(status.reason)
+            return False
+        self.scan_time_s += dt_s
+        self._observe()
+        if self.done:
+            return False
+        if self.camera_height_m >= self.config.end_height_m:
+            self._stop("end_height")
+        elif self.scan_time_s >= self.config.max_scan_time_s:
+            self._stop("timeout")
+        return not self.done
+
+    def _observe(self) -> None:
+        """Render and feed a frame when the modeler wants one."""
+        T = self.world.T_world_camera
+        if not self.modeler.wants_frame(T):
+            return
+        images = self.world.render()
+        mask = self.segmenter.segment(images.rgb, images.labels, self._segment_rng)
+        frame = Frame(images.rgb, mask, T, self.intrinsics, self.scan_time_s, images.depth_m)
+        report = self.modeler.update(frame)
+        if report is None:
+            return
+        self.reports.append(report)
+        if report.outcome is Outcome.CONSISTENT:
+            self._non_consistent_streak = 0
+        else:
+            self._non_consistent_streak += 1
+            if self._non_consistent_streak >= self.config.lost_branch_iterations:
+                self._stop("lost_branch")
+
+    def _stop(self, reason: str) -> None:
+        self.done = True
+        self.stop_reason = reason
+        self.failure = None if reason == "end_height" else reason
+        logger.debug("scan stopped: %s at height %.3f m", reason, self.camera_height_m)
+
+    # ------------------------------------------------------------------ scoring
+    def result(self, policy: str = "") -> ScanResult:
+        """Score the current model against the ground truth."""
+        if self.tree is None:
+            raise RuntimeError("ScanSession.reset(seed) must be called before result()")
+        model = self.model
+        metrics = evaluate(model, self.tree, scanned_top_z_m=self.camera_height_m)
+        outcomes = Counter(r.outcome.value for r in self.reports)
+        stages = sorted({k for r in self.reports for k in r.timings_ms})
+        stage_ms = {
+            k: float(np.median([r.timings_ms[k] for r in self.reports if k in r.timings_ms]))
+            for k in stages
+        }
+        return ScanResult(
+            seed=int(self.tree.seed) if self.tree.seed is not None else -1,
+            policy=policy,
+            metrics=metrics,
+            model=model,
+            truth=self.tree,
+            scan_time_s=self.scan_time_s,
+            rotations=self.rotations,
+            failure=self.failure,
+            stop_reason=self.stop_reason or "running",
+            n_iterations=len(self.reports),
+            outcomes=dict(outcomes),
+            stage_ms=stage_ms,
+            wall_time_s=time.perf_counter() - self._wall_start,
+        )
+
+
+@dataclass
+class ScanResult:
+    """One scored scan (see :meth:`ScanSession.result`)."""
+
+    seed: int
+    policy: str
+    metrics: TreeMetrics
+    model: TreeModel
+    truth: TreeGT
+    scan_time_s: float
+    rotations: int
+    failure: str | None
+    stop_reason: str
+    n_iterations: int
+    outcomes: dict[str, int]
+    stage_ms: dict[str, float]
+    wall_time_s: float
+
+    def to_row(self) -> dict:
+        """A flat, CSV-able row."""
+        row = {
+            "seed": self.seed,
+            "policy": self.policy,
+            "scan_time_s": self.scan_time_s,
+            "rotations": self.rotations,
+            "failure": self.failure or "",
+            "stop_reason": self.stop_reason,
+            "n_iterations": self.n_iterations,
+            "wall_time_s": self.wall_time_s,
+        }
+        row.update({f"outcome_{k}": v for k, v in sorted(self.outcomes.items())})
+        row.update(self.metrics.to_dict())
+        row.update({f"stage_{k}": v for k, v in self.stage_ms.items()})
+        return row
+
+
+_SESSIONS: dict[ScanConfig, ScanSession] = {}
+
+
+def run_scan(seed: int, policy_spec: str | object = "none", config: ScanConfig | None = None):
+    """Scan the tree of ``seed`` with a rotation policy and score it.
+
+    Args:
+        seed: Tree seed (and the seed of every random draw of the scan).
+        policy_spec: A spec for :func:`agents.rotation.make_policy` ("none",
+            "periodic:22.5:1.5") or a policy object with ``reset()`` and
+            ``target_angle_deg(state)``.
+        config: Scan settings.
+
+    Returns:
+        The :class:`ScanResult`.
+    """
+    from agents.rotation import RotationState, make_policy
+
+    config = config or ScanConfig()
+    policy = make_policy(policy_spec) if isinstance(policy_spec, str) else policy_spec
+    session = _SESSIONS.get(config)
+    if session is None:  # one pybullet world per process and config, reused across trials
+        session = _SESSIONS[config] = ScanSession(config)
+    session.reset(seed)
+    policy.reset()
+    while not session.done:
+        state = RotationState(
+            angle_deg=session.angle_deg,
+            travel_since_rotation_m=session.travel_since_rotation_m,
+            vertical_fov_m=session.vertical_fov_m,
+            iteration=len(session.reports),
+        )
+        session.step(policy.target_angle_deg(state))
+    return session.result(policy_spec if isinstance(policy_spec, str) else policy.spec)
+
+
+def _heading_rad(T_world_camera: np.ndarray) -> float:
+    """Yaw of the optical axis about world z, 0 along +y (the home view direction)."""
+    axis = T_world_camera[:3, 2]
+    return math.atan2(-axis[0], axis[1])
