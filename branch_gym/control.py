@@ -70,7 +70,9 @@ class PrimaryBranchController:
     """Follows the 3D primary branch model up the tree at a set distance, centred in the image."""
 
     def __init__(
-        self, config: FollowControllerConfig | None = None, intrinsics: CameraIntrinsics | None = None
+        self,
+        config: FollowControllerConfig | None = None,
+        intrinsics: CameraIntrinsics | None = None,
     ) -> None:
         self.config = config or FollowControllerConfig()
         self.intrinsics = intrinsics or CameraIntrinsics.from_fov()

@@ -94,7 +94,7 @@ def intrinsics_from_spec(spec: CameraSpec) -> CameraIntrinsics:
 
 
 def make_tracker(name: str) -> PointTracker:
-    """"lk" or "oracle"."""
+    """ "lk" or "oracle"."""
     if name == "lk":
         return LucasKanadeTracker()
     if name == "oracle":

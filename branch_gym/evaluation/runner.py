@@ -243,7 +243,7 @@ def _run_task(task: _Task) -> TrialKey:
         raise RuntimeError(f"trial {task.policy!r} seed {task.seed} raised: {exc!r}") from exc
     save_trial(
         trial_path(task.out, task.policy, task.seed),
-        TrialRecord.from_scan(result, task.scan_hash),
+        TrialRecord.from_scan(result, task.policy, task.scan_hash),
     )
     logger.info(
         "trial %s seed %d: %.1f s, failure %s",

@@ -62,14 +62,22 @@ class TrialRecord:
     failure: str | None
 
     @classmethod
-    def from_scan(cls, result: Any, config_hash: str) -> TrialRecord:
-        """Build a record from a ``branch_gym.scan.ScanResult``."""
+    def from_scan(cls, result: Any, policy: str, config_hash: str) -> TrialRecord:
+        """Build a record from a ``branch_gym.scan.ScanResult``.
+
+        Args:
+            result: The scan's result.
+            policy: The policy spec as requested (the row's ``policy`` is set to it).
+            config_hash: Hash of the scan configuration it ran with.
+        """
         truth = result.truth
+        row = {str(k): json_scalar(v) for k, v in result.to_row().items()}
+        row["policy"] = policy
         return cls(
-            policy=str(result.policy),
+            policy=policy,
             seed=int(result.seed),
             config_hash=config_hash,
-            row={str(k): json_scalar(v) for k, v in result.to_row().items()},
+            row=row,
             metrics=result.metrics,
             model=result.model,
             truth=TreeGT(truth.primary, list(truth.secondaries), [], truth.seed),

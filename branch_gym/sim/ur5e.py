@@ -1,4 +1,12 @@
-"""The UR5e model: DH kinematics in numpy and a URDF generated from the same table.
+"""The UR5e model: a URDF generated from the official DH table (this module), and the model's
+public names in one place.
+
+Where the rest lives (all re-exported here, so ``from branch_gym.sim import ur5e; ur5e.X`` works):
+
+* ``branch_gym/sim/ur5e_spec.py``: DH table, joint and link names, joint limits, masses.
+* ``branch_gym/sim/camera_mount.py``: :class:`CameraMountConfig` and :func:`T_flange_camera`.
+* ``branch_gym/sim/kinematics.py``: DH forward kinematics, Jacobian, SO(3) log/exp, pose error
+  and inverse kinematics in numpy.
 
 The URDF is written from the official DH parameters, so the pybullet model and
 :func:`dh_forward_kinematics` agree by construction (``tests/test_robot.py`` checks it). Each URDF
@@ -18,54 +26,62 @@ import hashlib
 import math
 import os
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-# Official UR5e DH parameters, Universal Robots "DH parameters for calculations of kinematics and
-# dynamics" (support article; also reference.md "Costs measured"). Standard (distal) DH convention:
-# T_{i-1,i} = Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i). Lengths in metres, angles in radians.
-DH_D_M = np.array([0.1625, 0.0, 0.0, 0.1333, 0.0997, 0.0996])
-DH_A_M = np.array([0.0, -0.425, -0.3922, 0.0, 0.0, 0.0])
-DH_ALPHA_RAD = np.array([math.pi / 2, 0.0, 0.0, math.pi / 2, -math.pi / 2, 0.0])
-
-N_JOINTS = 6
-JOINT_NAMES = (
-    "shoulder_pan_joint",
-    "shoulder_lift_joint",
-    "elbow_joint",
-    "wrist_1_joint",
-    "wrist_2_joint",
-    "wrist_3_joint",
+from branch_gym.sim.camera_mount import CameraMountConfig, T_flange_camera
+from branch_gym.sim.kinematics import (
+    dh_forward_kinematics,
+    dh_inverse_kinematics,
+    dh_jacobian,
+    dh_joint_frames,
+    pose_error,
+    rotation_exp,
+    rotation_log,
 )
-LINK_NAMES = (
-    "shoulder_link",
-    "upper_arm_link",
-    "forearm_link",
-    "wrist_1_link",
-    "wrist_2_link",
-    "wrist_3_link",
+from branch_gym.sim.ur5e_spec import (
+    BASE_MASS_KG,
+    CAMERA_LINK,
+    DH_A_M,
+    DH_ALPHA_RAD,
+    DH_D_M,
+    FLANGE_LINK,
+    JOINT_EFFORT_NM,
+    JOINT_LIMIT_RAD,
+    JOINT_NAMES,
+    JOINT_SPEED_LIMIT_RADPS,
+    LINK_MASS_KG,
+    LINK_NAMES,
+    N_JOINTS,
 )
-FLANGE_LINK = "flange"
-CAMERA_LINK = "camera_optical"
 
-# UR5e technical specifications (Universal Robots datasheet, "Joint ranges" and "Speed" rows):
-# every joint +-360 deg; base, shoulder, elbow and the three wrists all 180 deg/s.
-JOINT_LIMIT_RAD = 2.0 * math.pi
-JOINT_SPEED_LIMIT_RADPS = np.full(N_JOINTS, math.radians(180.0))
-# Rated joint torques (datasheet: size-3 joints 150 Nm, size-1 wrist joints 28 Nm); URDF needs them.
-JOINT_EFFORT_NM = (150.0, 150.0, 150.0, 28.0, 28.0, 28.0)
-# Link masses in kg from Universal Robots' published dynamics parameters (unused: kinematic sim).
-LINK_MASS_KG = (3.761, 8.058, 2.846, 1.37, 1.3, 0.365)
-BASE_MASS_KG = 4.0
-
-# IK iterations stop refining below these residuals (m, rad): far below any acceptance tolerance.
-_IK_CONVERGED_M = 1e-9
-_IK_CONVERGED_RAD = 1e-9
-# Damping of the IK's least-squares steps, our choice: small, only to keep steps finite near a
-# singular seed; it does not bias the converged solution.
-_IK_DAMPING = 1e-4
+__all__ = [
+    "BASE_MASS_KG",
+    "CAMERA_LINK",
+    "DH_ALPHA_RAD",
+    "DH_A_M",
+    "DH_D_M",
+    "FLANGE_LINK",
+    "JOINT_EFFORT_NM",
+    "JOINT_LIMIT_RAD",
+    "JOINT_NAMES",
+    "JOINT_SPEED_LIMIT_RADPS",
+    "LINK_MASS_KG",
+    "LINK_NAMES",
+    "N_JOINTS",
+    "CameraMountConfig",
+    "T_flange_camera",
+    "dh_forward_kinematics",
+    "dh_inverse_kinematics",
+    "dh_jacobian",
+    "dh_joint_frames",
+    "pose_error",
+    "rotation_exp",
+    "rotation_log",
+    "ur5e_urdf_text",
+    "write_ur5e_urdf",
+]
 
 # Collision geometry, our choice from the UR5e drawings: (kind, radius_m, length_m, xyz, rpy) in
 # the URDF link frame; capsule/cylinder axes run along their local z. Lengths are the cylindrical
@@ -95,257 +111,9 @@ _LINK_GEOMETRY: tuple[tuple[_Geometry, ...], ...] = (
 )
 
 
-# A camera bracket longer than this is no longer "on the flange" (sanity bound, our choice).
-_MAX_MOUNT_OFFSET_M = 0.3
 # Bracket plate between the flange face and the camera housing (x, y, z in the flange frame), our
 # choice: as wide as the flange, spanning from the joint-6 axis to under the camera.
 _BRACKET_SIZE_M = (0.07, 0.05, 0.012)
-
-
-@dataclass(frozen=True)
-class CameraMountConfig:
-    """Where the camera sits on the tool flange (the fixed ``T_flange_camera``).
-
-    The camera rides on top of the flange on a small bracket: image up is the flange normal
-    (flange z) and the optical axis is perpendicular to it. Scanning with the optical axis
-    horizontal then holds the flange pointing straight up, the UR's most comfortable wrist posture
-    (wrist 2 at +-90 deg, far from the wrist singularity), and turning the camera about a vertical
-    axis is mostly wrist 3. A camera looking along the flange normal would instead need wrist 2 to
-    follow every yaw, reaching its singularity within the +-45 deg rotations (measured:
-    ``branch_gym/sim/home.py``).
-
-    Attributes:
-        axial_offset_m: Optical centre above the flange face along flange z. Our choice: a 14 mm
-            bracket plate plus half the 42 mm height of an Intel RealSense D405 (the paper's lab
-            camera; Intel datasheet).
-        forward_offset_m: Optical centre ahead of the joint-6 axis along the optical axis. Our
-            choice: keeps the wrist housings (radius <= 45 mm) behind the image plane.
-        azimuth_deg: Direction of the optical axis about flange z, from flange x. Our choice:
-            along flange -y, which puts wrist 3 near -14 deg at the home pose (measured).
-        housing_size_m: Camera box (x, y, z in the camera frame) modelled behind the optical centre
-            for contact checks (D405: 42 x 42 x 23 mm, Intel datasheet).
-    """
-
-    axial_offset_m: float = 0.035
-    forward_offset_m: float = 0.04
-    azimuth_deg: float = -90.0
-    housing_size_m: tuple[float, float, float] = (0.042, 0.042, 0.023)
-
-    def __post_init__(self) -> None:
-        for name in ("axial_offset_m", "forward_offset_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and 0.0 <= value <= _MAX_MOUNT_OFFSET_M):
-                raise ValueError(f"{name} must be in [0, {_MAX_MOUNT_OFFSET_M}] m, got {value}")
-        if not math.isfinite(self.azimuth_deg):
-            raise ValueError(f"azimuth_deg must be finite, got {self.azimuth_deg}")
-        if len(self.housing_size_m) != 3 or not all(
-            math.isfinite(s) and s > 0 for s in self.housing_size_m
-        ):
-            raise ValueError(f"housing_size_m must be 3 positive sizes, got {self.housing_size_m}")
-        if self.axial_offset_m < 0.5 * self.housing_size_m[1]:
-            raise ValueError(
-                f"axial_offset_m ({self.axial_offset_m}) must clear half the housing height "
-                f"({0.5 * self.housing_size_m[1]}): the camera would sit inside the flange"
-            )
-
-
-# The camera frame in the flange frame before the azimuth turn: optical axis (camera z) along
-# flange x, image down (camera y) along -flange z, camera x = y cross z = -flange y.
-_R_FLANGE_CAMERA_0 = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-
-
-def _rot_z(angle_rad: float) -> np.ndarray:
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-
-
-def T_flange_camera(mount: CameraMountConfig | None = None) -> np.ndarray:
-    """Fixed camera pose in the flange frame.
-
-    Args:
-        mount: The camera mount; defaults to :class:`CameraMountConfig()`.
-
-    Returns:
-        (4, 4) transform mapping camera-frame points (OpenCV axes) to flange-frame points.
-    """
-    mount = mount or CameraMountConfig()
-    T = np.eye(4)
-    T[:3, :3] = _rot_z(math.radians(mount.azimuth_deg)) @ _R_FLANGE_CAMERA_0
-    T[:3, 3] = mount.forward_offset_m * T[:3, 2] + np.array([0.0, 0.0, mount.axial_offset_m])
-    return T
-
-
-def _check_q(q: np.ndarray) -> np.ndarray:
-    q = np.asarray(q, dtype=float)
-    if q.shape != (N_JOINTS,):
-        raise ValueError(f"joint vector must have shape ({N_JOINTS},), got {q.shape}")
-    if not np.all(np.isfinite(q)):
-        raise ValueError(f"joint vector must be finite, got {q}")
-    return q
-
-
-def dh_joint_frames(q: np.ndarray) -> np.ndarray:
-    """All DH frames of the arm, base to flange.
-
-    Args:
-        q: (6,) joint angles in radians.
-
-    Returns:
-        (7, 4, 4) poses of DH frames 0 (the robot base) to 6 (the flange), in the base frame.
-        Frame ``i`` has its z axis on joint ``i+1``'s axis.
-    """
-    q = _check_q(q)
-    frames = np.empty((N_JOINTS + 1, 4, 4))
-    frames[0] = np.eye(4)
-    for i in range(N_JOINTS):
-        ct, st = math.cos(q[i]), math.sin(q[i])
-        ca, sa = math.cos(DH_ALPHA_RAD[i]), math.sin(DH_ALPHA_RAD[i])
-        a, d = DH_A_M[i], DH_D_M[i]
-        step = np.array(
-            [
-                [ct, -st * ca, st * sa, a * ct],
-                [st, ct * ca, -ct * sa, a * st],
-                [0.0, sa, ca, d],
-                [0.0, 0.0, 0.0, 1.0],
-            ]
-        )
-        frames[i + 1] = frames[i] @ step
-    return frames
-
-
-def dh_forward_kinematics(q: np.ndarray) -> np.ndarray:
-    """Flange pose from the DH table.
-
-    Args:
-        q: (6,) joint angles in radians.
-
-    Returns:
-        (4, 4) ``T_base_flange`` in metres.
-    """
-    return dh_joint_frames(q)[-1]
-
-
-def dh_jacobian(
-    q: np.ndarray, T_flange_tool: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Geometric Jacobian of a tool point, from the DH table.
-
-    Args:
-        q: (6,) joint angles in radians.
-        T_flange_tool: (4, 4) tool pose in the flange frame; identity (the flange) if None.
-
-    Returns:
-        ``(T_base_tool, J_base)``: the (4, 4) tool pose in the base frame and the (6, 6) Jacobian
-        mapping joint rates (rad/s) to the tool origin's linear velocity (m/s, rows 0-2) and the
-        angular velocity (rad/s, rows 3-5), both expressed in the base frame.
-    """
-    frames = dh_joint_frames(q)
-    T_base_tool = frames[-1] if T_flange_tool is None else frames[-1] @ T_flange_tool
-    axes = frames[:N_JOINTS, :3, 2]
-    lever = T_base_tool[:3, 3] - frames[:N_JOINTS, :3, 3]
-    J = np.empty((6, N_JOINTS))
-    J[:3] = np.cross(axes, lever).T
-    J[3:] = axes.T
-    return T_base_tool, J
-
-
-def rotation_log(R: np.ndarray) -> np.ndarray:
-    """Axis-angle vector of a rotation matrix (the SO(3) logarithm).
-
-    Args:
-        R: (3, 3) rotation matrix.
-
-    Returns:
-        (3,) rotation vector (axis x angle, rad), angle in [0, pi].
-    """
-    cos_angle = np.clip(0.5 * (np.trace(R) - 1.0), -1.0, 1.0)
-    angle = math.acos(cos_angle)
-    skew = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if angle < 1e-6:
-        return 0.5 * skew
-    if angle < math.pi - 1e-6:
-        return angle / (2.0 * math.sin(angle)) * skew
-    # Near pi the skew part vanishes: take the axis from the symmetric part.
-    axis_outer = 0.5 * (R + np.eye(3))
-    axis = axis_outer[:, int(np.argmax(np.diag(axis_outer)))]
-    axis = axis / np.linalg.norm(axis)
-    return angle * axis
-
-
-def rotation_exp(rotation_vector: np.ndarray) -> np.ndarray:
-    """Rotation matrix of an axis-angle vector (the SO(3) exponential, Rodrigues' formula).
-
-    Args:
-        rotation_vector: (3,) axis x angle (rad).
-
-    Returns:
-        (3, 3) rotation matrix.
-    """
-    angle = float(np.linalg.norm(rotation_vector))
-    K = np.array(
-        [
-            [0.0, -rotation_vector[2], rotation_vector[1]],
-            [rotation_vector[2], 0.0, -rotation_vector[0]],
-            [-rotation_vector[1], rotation_vector[0], 0.0],
-        ]
-    )
-    if angle < 1e-9:
-        return np.eye(3) + K
-    return np.eye(3) + math.sin(angle) / angle * K + (1.0 - math.cos(angle)) / angle**2 * K @ K
-
-
-def pose_error(T_world_target: np.ndarray, T_world_current: np.ndarray) -> np.ndarray:
-    """World-frame error that takes ``current`` to ``target``.
-
-    Returns:
-        (6,) [position error (m), rotation vector of ``R_target R_current^T`` (rad)], world frame.
-    """
-    error = np.empty(6)
-    error[:3] = T_world_target[:3, 3] - T_world_current[:3, 3]
-    error[3:] = rotation_log(T_world_target[:3, :3] @ T_world_current[:3, :3].T)
-    return error
-
-
-def dh_inverse_kinematics(
-    T_base_tool_target: np.ndarray,
-    q_seed: np.ndarray,
-    T_flange_tool: np.ndarray | None = None,
-    max_iterations: int = 200,
-    max_step_rad: float = 0.2,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Joint angles putting a tool frame at a pose: damped Newton steps on the DH model.
-
-    Steps are clipped to ``max_step_rad`` per joint so that the iteration stays on the seed's IK
-    branch (shoulder, elbow, wrist flip). It stops when the residual is negligible or after
-    ``max_iterations``; the caller judges the residual.
-
-    Args:
-        T_base_tool_target: (4, 4) target tool pose in the base frame.
-        q_seed: (6,) start joint angles (rad).
-        T_flange_tool: (4, 4) tool pose in the flange frame; identity if None.
-        max_iterations: Iteration budget.
-        max_step_rad: Largest joint change per iteration.
-
-    Returns:
-        ``(q, residual)``: (6,) joint angles (rad, not wrapped) and the (6,) final
-        :func:`pose_error` [m, rad] in the base frame.
-    """
-    q = _check_q(q_seed).copy()
-    residual = np.zeros(6)
-    for _ in range(max_iterations):
-        T_base_tool, J = dh_jacobian(q, T_flange_tool)
-        residual = pose_error(T_base_tool_target, T_base_tool)
-        if (
-            np.linalg.norm(residual[:3]) < _IK_CONVERGED_M
-            and np.linalg.norm(residual[3:]) < _IK_CONVERGED_RAD
-        ):
-            break
-        step = J.T @ np.linalg.solve(J @ J.T + _IK_DAMPING**2 * np.eye(6), residual)
-        largest = float(np.max(np.abs(step)))
-        if largest > max_step_rad:
-            step *= max_step_rad / largest
-        q = q + step
-    return q, residual
 
 
 def _rpy_from_matrix(R: np.ndarray) -> tuple[float, float, float]:

@@ -1,0 +1,27 @@
+"""Full scans: ``scan_s``, median wall seconds per no-rotation scan of one tree, real LK tracking.
+
+The scan includes the world reset (new tree), every render, segmentation, tracking, modeling and
+control step, from the home pose to the end height (0.275 -> 0.75 m at 2.5 cm/s). Target: <= 4 s
+on one core (issue "Follow-the-leader scans").
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from branch_gym.scan import ScanConfig, run_scan
+
+SEEDS = (0, 1, 2, 3, 4)
+
+
+def run() -> dict[str, float]:
+    config = ScanConfig()
+    run_scan(100, "none", config)  # warm-up: process start, first world, caches
+    seconds = []
+    for seed in SEEDS:
+        start = time.perf_counter()
+        run_scan(seed, "none", config)
+        seconds.append(time.perf_counter() - start)
+    return {"scan_s": float(np.median(seconds))}

@@ -1,0 +1,129 @@
+"""Figures of an evaluation: missed branches against scan time, and reconstructions per tree.
+
+Figures are drawn on matplotlib's Agg canvas (no display, no pyplot state), so they work in worker
+processes and on headless machines.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 (registers the "3d" projection)
+
+from branch_gym.evaluation.trials import TrialRecord
+from recon.metrics import MetricsConfig
+
+TRUTH_COLOR = "0.6"
+MODEL_COLOR = "red"
+# Height window of the tree figures around the scanned part (m).
+BELOW_SCAN_M = 0.05
+ABOVE_SCAN_M = 0.10
+
+
+def write_figures(
+    out: Path, summary: dict, records: Sequence[TrialRecord], plot_seeds: Sequence[int]
+) -> list[Path]:
+    """Write ``missed_vs_scan_time.png`` and ``tree_<seed>.png`` for each seed to plot.
+
+    Args:
+        out: Output folder.
+        summary: The evaluation summary (``report.build_summary``).
+        records: All trials, policy order then seed.
+        plot_seeds: Tree seeds to draw, one figure each (all policies side by side).
+
+    Returns:
+        The files written.
+    """
+    paths = [out / "missed_vs_scan_time.png"]
+    plot_missed_vs_scan_time(summary, paths[0])
+    for seed in plot_seeds:
+        paths.append(out / f"tree_{seed}.png")
+        plot_tree([r for r in records if r.seed == seed], paths[-1])
+    return paths
+
+
+def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
+    """Missed % against mean scan time, one labelled point per policy (std as error bars)."""
+    figure = Figure(figsize=(6.0, 4.5))
+    FigureCanvasAgg(figure)
+    axes = figure.add_subplot()
+    for policy, entry in summary["policies"].items():
+        time_s, missed = entry["scan_time_s"], entry["missed_pct"]
+        if time_s["mean"] is None or missed is None:
+            continue
+        axes.errorbar(time_s["mean"], missed, xerr=time_s["std"] or 0.0, fmt="o", capsize=3)
+        axes.annotate(policy, (time_s["mean"], missed), xytext=(5, 5), textcoords="offset points")
+    axes.set_xlabel("scan time (s), mean (std)")
+    axes.set_ylabel("missed secondary branches (%)")
+    axes.set_title("Missed branches against scan time")
+    axes.grid(alpha=0.3)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+
+
+def plot_tree(records: Sequence[TrialRecord], path: Path) -> None:
+    """One tree's reconstructions (red) over its ground truth (grey), one 3D panel per policy.
+
+    Args:
+        records: The trials of one tree seed, one per policy, in column order.
+        path: PNG file to write.
+    """
+    if not records:
+        raise ValueError("plot_tree needs at least one trial")
+    top_m = max(r.metrics.scanned_top_z_m for r in records)
+    z_range = (MetricsConfig().band_min_z_m - BELOW_SCAN_M, top_m + ABOVE_SCAN_M)
+    figure = Figure(figsize=(3.2 * len(records), 6.0))
+    FigureCanvasAgg(figure)
+    for column, record in enumerate(records, start=1):
+        axes = figure.add_subplot(1, len(records), column, projection="3d")
+        truth = [record.truth.primary, *record.truth.secondaries]
+        model = [b for b in [record.model.primary, *record.model.secondaries] if b is not None]
+        for branch in truth:
+            _draw(axes, branch.points, z_range, TRUTH_COLOR, 3.0)
+        for branch in model:
+            _draw(axes, branch.points, z_range, MODEL_COLOR, 1.5)
+        _equal_box(axes, [b.points for b in truth + model], z_range)
+        metrics = record.metrics
+        failure = f", {record.failure}" if record.failure else ""
+        axes.set_title(
+            f"{record.policy}\nmatched {metrics.n_matched}/{metrics.n_gt}, "
+            f"spurious {metrics.n_spurious}{failure}",
+            fontsize=9,
+        )
+        axes.set_xlabel("x (m)", fontsize=8)
+        axes.set_ylabel("y (m)", fontsize=8)
+        axes.set_zlabel("z (m)", fontsize=8)
+        axes.tick_params(labelsize=7)
+    figure.suptitle(f"Tree seed {records[0].seed}: reconstruction (red) over ground truth (grey)")
+    figure.tight_layout()
+    figure.savefig(path, dpi=100)
+
+
+def _draw(
+    axes: object, points: np.ndarray, z_range: tuple[float, float], color: str, width: float
+) -> None:
+    """A polyline, cut to the height window (NaN gaps break the line outside it)."""
+    if len(points) == 0:
+        return
+    shown = points.astype(float).copy()
+    shown[(shown[:, 2] < z_range[0]) | (shown[:, 2] > z_range[1])] = np.nan
+    axes.plot(shown[:, 0], shown[:, 1], shown[:, 2], color=color, linewidth=width)
+
+
+def _equal_box(axes: object, polylines: list[np.ndarray], z_range: tuple[float, float]) -> None:
+    """Equal scale on all axes over the points inside the height window."""
+    points = np.concatenate([p for p in polylines if len(p)] or [np.zeros((1, 3))])
+    points = points[(points[:, 2] >= z_range[0]) & (points[:, 2] <= z_range[1])]
+    if len(points) == 0:
+        return
+    low, high = points.min(axis=0), points.max(axis=0)
+    low[2], high[2] = z_range
+    centre, half = (low + high) / 2.0, np.maximum((high - low) / 2.0, 0.02)
+    axes.set_xlim(centre[0] - half[0], centre[0] + half[0])
+    axes.set_ylim(centre[1] - half[1], centre[1] + half[1])
+    axes.set_zlim(*z_range)
+    axes.set_box_aspect(tuple(2.0 * half))

@@ -1,0 +1,190 @@
+"""Aggregate saved trials into the paper's table: ``summary.json``, ``table.md``, ``trials.csv``.
+
+Per policy (recon.metrics.aggregate): the PB residual is pooled over the points of all trials (as
+the paper); PB and SB radius RMSEs are per trial, then mean (std) over the trials that have one;
+the SB residual is pooled over matched samples; spurious / missed / duplicate percentages are
+totals over trials divided by all in-scope ground-truth branches. Scan time and rotations are
+mean (std) over trials. Failed scans count in "failures" and still contribute what they
+reconstructed. Standard deviations are population (ddof=0). Undefined values are ``null`` in
+JSON and ``n/a`` in tables.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from branch_gym.evaluation.paper import paper_column
+from branch_gym.evaluation.runner import EvalConfig
+from branch_gym.evaluation.trials import TrialRecord
+from recon.metrics import aggregate
+
+MM_PER_M = 1000.0
+MISSING = "n/a"  # an undefined value of ours
+NOT_REPORTED = "-"  # a value the paper does not report
+
+# Table rows: (label, summary key), the paper's layout and then ours.
+TABLE_ROWS: tuple[tuple[str, str], ...] = (
+    ("PB residual (mm)", "pb_residual_mm"),
+    ("PB radius RMSE (mm)", "pb_radius_rmse_mm"),
+    ("SB residual (mm)", "sb_residual_mm"),
+    ("SB radius (mm)", "sb_radius_mm"),
+    ("Spurious %", "spurious_pct"),
+    ("Missed %", "missed_pct"),
+    ("Duplicates %", "duplicate_pct"),
+    ("Scan time (s)", "scan_time_s"),
+    ("Rotations", "rotations"),
+    ("Trials", "trials"),
+    ("Failures", "failures"),
+)
+
+
+def summarise_policy(records: Sequence[TrialRecord]) -> dict:
+    """One policy's summary entry (the shape of ``summary.json["policies"][NAME]``).
+
+    Raises:
+        ValueError: no records.
+    """
+    stats = aggregate([r.metrics for r in records])
+    scan_times = np.array([r.scan_time_s for r in records], dtype=float)
+    rotations = np.array([r.rotations for r in records], dtype=float)
+    return {
+        "trials": len(records),
+        "failures": sum(r.failure is not None for r in records),
+        "pb_residual_mm": _mean_std(
+            stats["pb_residual_mean_m"], stats["pb_residual_std_m"], MM_PER_M
+        ),
+        "pb_radius_rmse_mm": _mean_std(
+            stats["pb_radius_rmse_mean_m"], stats["pb_radius_rmse_std_m"], MM_PER_M
+        ),
+        "sb_residual_mm": _mean_std(
+            stats["sb_residual_mean_m"], stats["sb_residual_std_m"], MM_PER_M
+        ),
+        "sb_radius_mm": _mean_std(
+            stats["sb_radius_rmse_mean_m"], stats["sb_radius_rmse_std_m"], MM_PER_M
+        ),
+        "spurious_pct": _finite_or_none(stats["spurious_pct"]),
+        "missed_pct": _finite_or_none(stats["missed_pct"]),
+        "duplicate_pct": _finite_or_none(stats["duplicate_pct"]),
+        "scan_time_s": _mean_std(float(np.mean(scan_times)), float(np.std(scan_times))),
+        "rotations": _mean_std(float(np.mean(rotations)), float(np.std(rotations))),
+    }
+
+
+def build_summary(config: EvalConfig, records: Sequence[TrialRecord]) -> dict:
+    """``summary.json``: one entry per policy, keyed by its spec as given, and the run config."""
+    by_policy = {policy: [r for r in records if r.policy == policy] for policy in config.policies}
+    empty = [policy for policy, rs in by_policy.items() if not rs]
+    if empty:
+        raise ValueError(f"no trials for policies {empty}")
+    return {
+        "policies": {policy: summarise_policy(rs) for policy, rs in by_policy.items()},
+        "config": config.to_json_dict(),
+    }
+
+
+def format_cell(value: object) -> str:
+    """``{"mean", "std"}`` -> "mean (std)"; a float -> 1 decimal; an int as is; None -> n/a."""
+    if isinstance(value, dict):
+        mean, std = value["mean"], value["std"]
+        if mean is None:
+            return MISSING
+        return f"{mean:.1f}" if std is None else f"{mean:.1f} ({std:.1f})"
+    if value is None:
+        return MISSING
+    if isinstance(value, int):
+        return str(value)
+    return f"{value:.1f}"
+
+
+def format_table(summary: dict) -> str:
+    """The paper's table layout in Markdown: one column per policy, in the given order."""
+    policies = summary["policies"]
+    header = ["", *(_escape(p) for p in policies)]
+    rows = [
+        [label, *(format_cell(entry[key]) for entry in policies.values())]
+        for label, key in TABLE_ROWS
+    ]
+    return _markdown([header, *rows])
+
+
+def format_comparison(summary: dict) -> str:
+    """Our table with the paper's Table I value beside each column (``-``: not reported)."""
+    policies = summary["policies"]
+    header = [""]
+    for policy in policies:
+        header += [_escape(policy), "paper"]
+    rows = []
+    for label, key in TABLE_ROWS:
+        row = [label]
+        for policy, entry in policies.items():
+            paper = paper_column(policy) or {}
+            row += [format_cell(entry[key]), format_cell(paper[key]) if key in paper else "-"]
+        rows.append(row)
+    return _markdown([header, *rows])
+
+
+def write_report(out: Path, config: EvalConfig, records: Sequence[TrialRecord]) -> dict:
+    """Write ``summary.json``, ``table.md`` and ``trials.csv`` into ``out``.
+
+    Returns:
+        The summary.
+    """
+    summary = build_summary(config, records)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
+    (out / "table.md").write_text(_table_document(summary))
+    write_trials_csv(out / "trials.csv", records)
+    return summary
+
+
+def write_trials_csv(path: Path, records: Sequence[TrialRecord]) -> None:
+    """One row per trial (``ScanResult.to_row()``), in the records' order; columns in first-seen
+    order over all rows (a cell is empty where a row lacks the column)."""
+    columns: dict[str, None] = {}
+    for record in records:
+        columns.update(dict.fromkeys(record.row))
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(columns), restval="")
+        writer.writeheader()
+        writer.writerows(record.row for record in records)
+
+
+def _table_document(summary: dict) -> str:
+    config = summary["config"]
+    seeds = config["seeds"]
+    return (
+        "# Simulated scans, mean (std) per policy\n\n"
+        f"Trees: seeds {seeds[0]}..{seeds[-1]}; scan configuration {config['scan_config_hash']} "
+        "(summary.json). PB residual pooled over points; radius RMSEs per trial; percentages of "
+        "in-scope ground-truth secondaries, totals over trials.\n\n"
+        f"{format_table(summary)}\n"
+    )
+
+
+def _mean_std(mean: float, std: float, scale: float = 1.0) -> dict[str, float | None]:
+    return {"mean": _finite_or_none(mean * scale), "std": _finite_or_none(std * scale)}
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if math.isfinite(value) else None
+
+
+def _escape(text: str) -> str:
+    return text.replace("|", "\\|")
+
+
+def _markdown(rows: list[list[str]]) -> str:
+    """A Markdown table with padded columns (first row is the header)."""
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    lines = [
+        "| " + " | ".join(c.ljust(w) for c, w in zip(row, widths, strict=True)) + " |"
+        for row in rows
+    ]
+    rule = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
+    return "\n".join([lines[0], rule, *lines[1:]])
