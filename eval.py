@@ -63,10 +63,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
+    # Imported here, after OMP_NUM_THREADS is set above and before numpy reads it.
     from tqdm import tqdm
 
     from branch_gym.evaluation.pipeline import run_evaluation
-    from branch_gym.evaluation.report import format_comparison
+    from branch_gym.evaluation.report import failure_reasons, format_comparison
     from branch_gym.evaluation.runner import ConfigMismatchError, EvalConfig
     from branch_gym.scan import ScanConfig
 
@@ -85,11 +86,11 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, TypeError) as exc:
         parser.error(str(exc))
 
-    bar = tqdm(total=0, unit="trial", desc="trials", disable=None)
+    bar = None
 
     def on_start(total: int, saved: int) -> None:
-        bar.reset(total=total)
-        bar.update(saved)
+        nonlocal bar
+        bar = tqdm(total=total, initial=saved, unit="trial", desc="trials", smoothing=0.0)
 
     def on_done(key: tuple[str, int]) -> None:
         bar.set_postfix_str(f"{key[0]} seed {key[1]}", refresh=False)
@@ -108,12 +109,14 @@ def main(argv: list[str] | None = None) -> int:
         )
         return EXIT_INTERRUPTED
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
 
     loaded = len(outcome.records) - len(outcome.computed)
     print(f"\n{len(outcome.computed)} trials run, {loaded} loaded from {args.out / 'trials'}")
     print("\nOurs next to the paper's Table I (simulated, 60 trials per column):\n")
     print(format_comparison(outcome.summary))
+    print(f"\nFailure reasons: {failure_reasons(outcome.records, config.policies)}")
     print("\nwrote " + ", ".join(str(path) for path in outcome.files))
     return 0
 

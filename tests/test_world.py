@@ -55,6 +55,14 @@ MAX_RSS_GROWTH_MB = 50.0
 KIB_PER_MIB = 1024.0
 
 HOME_SEEDS = (0, 1, 2, 3, 4)
+# Another home pose inside the arm's reach (our choice), to show both are parameters.
+OTHER_START_HEIGHT_M = 0.35
+OTHER_Z_TARGET_M = 0.25
+# A vertical 5 mm primary 1 cm behind the default placement, given to reset() instead of a seed.
+GIVEN_TREE_HEIGHT_M = 1.0
+GIVEN_TREE_POINTS = 1001  # 1 mm spacing
+GIVEN_TREE_Y_M = 0.01
+GIVEN_TREE_RADIUS_M = 0.005
 
 
 @pytest.fixture(scope="module")
@@ -107,42 +115,70 @@ def test_different_seeds_give_different_trees(world: World) -> None:
 
 
 def test_reset_with_a_given_tree_uses_it(world: World) -> None:
-    z = np.linspace(0.0, 1.0, 1001)
-    primary = BranchGT(
-        np.stack([np.zeros_like(z), np.full_like(z, 0.01), z], 1), np.full(1001, 5e-3)
-    )
+    z = np.linspace(0.0, GIVEN_TREE_HEIGHT_M, GIVEN_TREE_POINTS)
+    x, y = np.zeros_like(z), np.full_like(z, GIVEN_TREE_Y_M)
+    primary = BranchGT(np.stack([x, y, z], 1), np.full(len(z), GIVEN_TREE_RADIUS_M))
     tree = TreeGT(primary=primary)
     assert world.reset(3, tree=tree) is tree and world.tree is tree
     camera = world.T_world_camera[:3, 3]
-    assert camera[1] == pytest.approx(0.01 - Z_TARGET_M, abs=POSITION_TOLERANCE_M)
+    assert camera[1] == pytest.approx(GIVEN_TREE_Y_M - Z_TARGET_M, abs=POSITION_TOLERANCE_M)
     assert set(np.unique(world.render().labels)) == {0, PRIMARY_LABEL}
 
 
 # ------------------------------------------------------------------------------- home pose
 
 
-@pytest.mark.parametrize("seed", HOME_SEEDS)
-def test_home_pose_faces_the_primary_at_z_target(world: World, seed: int) -> None:
+def _primary_at_height(tree: TreeGT, height_m: float) -> np.ndarray:
+    """(3,) primary centerline point at ``height_m``: linear between the bracketing GT points."""
+    points = tree.primary.points
+    above = int(np.argmax(points[:, 2] >= height_m))
+    low, high = points[above - 1], points[above]
+    return low + (height_m - low[2]) / (high[2] - low[2]) * (high - low)
+
+
+def _check_home_pose(world: World, seed: int) -> None:
+    """The camera is z_target in front of the primary at the scan start height, level, facing it."""
     tree = world.reset(seed)
+    start_m, z_target_m = world.config.scan_start_height_m, world.config.z_target_m
     T = world.T_world_camera
     camera, optical_axis, image_down = T[:3, 3], T[:3, 2], T[:3, 1]
-    branch = World.primary_point_at_height(SCAN_START_HEIGHT_M, tree)
-    assert camera[2] == pytest.approx(SCAN_START_HEIGHT_M, abs=POSITION_TOLERANCE_M)
+    branch = _primary_at_height(tree, start_m)
+    assert camera[2] == pytest.approx(start_m, abs=POSITION_TOLERANCE_M)
     horizontal_m = float(np.linalg.norm((branch - camera)[:2]))
-    assert horizontal_m == pytest.approx(Z_TARGET_M, abs=POSITION_TOLERANCE_M)
-    max_sine = math.sin(math.radians(AXIS_TOLERANCE_DEG))
-    assert abs(optical_axis[2]) < max_sine  # horizontal
-    assert image_down @ [0.0, 0.0, -1.0] > math.cos(math.radians(AXIS_TOLERANCE_DEG))  # level
+    assert horizontal_m == pytest.approx(z_target_m, abs=POSITION_TOLERANCE_M)
+    cos_tolerance = math.cos(math.radians(AXIS_TOLERANCE_DEG))
+    assert abs(optical_axis[2]) < math.sin(math.radians(AXIS_TOLERANCE_DEG))  # horizontal
+    assert image_down @ [0.0, 0.0, -1.0] > cos_tolerance  # level: image up is world up
     to_branch = (branch - camera) / np.linalg.norm(branch - camera)
-    assert optical_axis @ to_branch > math.cos(math.radians(AXIS_TOLERANCE_DEG))  # facing it
+    assert optical_axis @ to_branch > cos_tolerance  # facing the branch
     spec = world.config.camera
     pixel, depth = spec.project(branch[None], T)
     assert pixel[0] == pytest.approx([spec.cx, spec.cy], abs=CENTRE_COLUMN_TOLERANCE_PX)
-    assert depth[0] == pytest.approx(Z_TARGET_M, abs=POSITION_TOLERANCE_M)
+    assert depth[0] == pytest.approx(z_target_m, abs=POSITION_TOLERANCE_M)
     # The rendered primary crosses the middle image row at the centre column.
     columns = np.flatnonzero(world.render().labels[int(spec.cy)] == PRIMARY_LABEL)
     assert len(columns) > 0
     assert columns.mean() == pytest.approx(spec.cx, abs=CENTRE_COLUMN_TOLERANCE_PX)
+
+
+@pytest.mark.parametrize("seed", HOME_SEEDS)
+def test_home_pose_faces_the_primary_at_z_target(world: World, seed: int) -> None:
+    assert (world.config.scan_start_height_m, world.config.z_target_m) == (
+        SCAN_START_HEIGHT_M,
+        Z_TARGET_M,
+    )
+    _check_home_pose(world, seed)
+
+
+def test_home_pose_follows_the_configured_height_and_distance() -> None:
+    other = World(
+        WorldConfig(scan_start_height_m=OTHER_START_HEIGHT_M, z_target_m=OTHER_Z_TARGET_M)
+    )
+    try:
+        for seed in HOME_SEEDS[:2]:
+            _check_home_pose(other, seed)
+    finally:
+        other.close()
 
 
 # ------------------------------------------------------------------------------- labels

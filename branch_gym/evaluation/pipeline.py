@@ -20,7 +20,7 @@ from branch_gym.evaluation.runner import (
     pending_trials,
     run_trials,
 )
-from branch_gym.evaluation.trials import TrialRecord
+from branch_gym.evaluation.trials import TrialRecord, remove_partial_writes
 
 DEFAULT_PLOT_TREES = 2
 
@@ -76,6 +76,7 @@ def run_evaluation(
         )
     out.mkdir(parents=True, exist_ok=True)
     check_output_folder(config, out)
+    remove_partial_writes(out)
     todo = pending_trials(config, out)
     if on_start is not None:
         on_start(len(config.keys), len(config.keys) - len(todo))

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from mpl_toolkits.mplot3d import Axes3D  # noqa: F401 (registers the "3d" projection)
+from matplotlib.ticker import MaxNLocator
+from mpl_toolkits.mplot3d import Axes3D  # importing it registers the "3d" projection
 
 from branch_gym.evaluation.trials import TrialRecord
 from recon.metrics import MetricsConfig
@@ -22,6 +23,9 @@ MODEL_COLOR = "red"
 # Height window of the tree figures around the scanned part (m).
 BELOW_SCAN_M = 0.05
 ABOVE_SCAN_M = 0.10
+# View from the camera's side (it looks along +y), a little from above and to the left.
+VIEW_ELEVATION_DEG = 15.0
+VIEW_AZIMUTH_DEG = -70.0
 
 
 def write_figures(
@@ -57,6 +61,8 @@ def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
             continue
         axes.errorbar(time_s["mean"], missed, xerr=time_s["std"] or 0.0, fmt="o", capsize=3)
         axes.annotate(policy, (time_s["mean"], missed), xytext=(5, 5), textcoords="offset points")
+    axes.set_ylim(bottom=0.0)
+    axes.margins(x=0.3)  # room for the labels
     axes.set_xlabel("scan time (s), mean (std)")
     axes.set_ylabel("missed secondary branches (%)")
     axes.set_title("Missed branches against scan time")
@@ -98,13 +104,16 @@ def plot_tree(records: Sequence[TrialRecord], path: Path) -> None:
         axes.set_ylabel("y (m)", fontsize=8)
         axes.set_zlabel("z (m)", fontsize=8)
         axes.tick_params(labelsize=7)
+        for axis in (axes.xaxis, axes.yaxis):
+            axis.set_major_locator(MaxNLocator(3))
+        axes.view_init(elev=VIEW_ELEVATION_DEG, azim=VIEW_AZIMUTH_DEG)
     figure.suptitle(f"Tree seed {records[0].seed}: reconstruction (red) over ground truth (grey)")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
 
 
 def _draw(
-    axes: object, points: np.ndarray, z_range: tuple[float, float], color: str, width: float
+    axes: Axes3D, points: np.ndarray, z_range: tuple[float, float], color: str, width: float
 ) -> None:
     """A polyline, cut to the height window (NaN gaps break the line outside it)."""
     if len(points) == 0:
@@ -114,7 +123,7 @@ def _draw(
     axes.plot(shown[:, 0], shown[:, 1], shown[:, 2], color=color, linewidth=width)
 
 
-def _equal_box(axes: object, polylines: list[np.ndarray], z_range: tuple[float, float]) -> None:
+def _equal_box(axes: Axes3D, polylines: list[np.ndarray], z_range: tuple[float, float]) -> None:
     """Equal scale on all axes over the points inside the height window."""
     points = np.concatenate([p for p in polylines if len(p)] or [np.zeros((1, 3))])
     points = points[(points[:, 2] >= z_range[0]) & (points[:, 2] <= z_range[1])]

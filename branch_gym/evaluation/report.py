@@ -14,6 +14,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections import Counter
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -138,7 +139,7 @@ def write_report(out: Path, config: EvalConfig, records: Sequence[TrialRecord]) 
     summary = build_summary(config, records)
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
-    (out / "table.md").write_text(_table_document(summary))
+    (out / "table.md").write_text(_table_document(summary, records))
     write_trials_csv(out / "trials.csv", records)
     return summary
 
@@ -155,7 +156,7 @@ def write_trials_csv(path: Path, records: Sequence[TrialRecord]) -> None:
         writer.writerows(record.row for record in records)
 
 
-def _table_document(summary: dict) -> str:
+def _table_document(summary: dict, records: Sequence[TrialRecord]) -> str:
     config = summary["config"]
     seeds = config["seeds"]
     return (
@@ -163,8 +164,20 @@ def _table_document(summary: dict) -> str:
         f"Trees: seeds {seeds[0]}..{seeds[-1]}; scan configuration {config['scan_config_hash']} "
         "(summary.json). PB residual pooled over points; radius RMSEs per trial; percentages of "
         "in-scope ground-truth secondaries, totals over trials.\n\n"
-        f"{format_table(summary)}\n"
+        f"{format_table(summary)}\n\n"
+        f"Failure reasons: {failure_reasons(records, config['policies'])}\n"
     )
+
+
+def failure_reasons(records: Sequence[TrialRecord], policies: Sequence[str]) -> str:
+    """E.g. "none: lost_branch 1; periodic:45:1.5: joint_limit 2, singularity 1" (or "none")."""
+    parts = []
+    for policy in policies:
+        reasons = Counter(r.failure for r in records if r.policy == policy and r.failure)
+        if reasons:
+            counts = ", ".join(f"{reason} {n}" for reason, n in sorted(reasons.items()))
+            parts.append(f"{policy}: {counts}")
+    return "; ".join(parts) or "none"
 
 
 def _mean_std(mean: float, std: float, scale: float = 1.0) -> dict[str, float | None]:

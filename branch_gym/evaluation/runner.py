@@ -17,6 +17,9 @@ import concurrent.futures as cf
 import json
 import logging
 import multiprocessing
+import os
+import signal
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -39,6 +42,7 @@ from branch_gym.scan import ScanConfig, run_scan
 logger = logging.getLogger(__name__)
 
 CONFIG_FILE = "config.json"
+PARENT_POLL_S = 1.0  # how often a worker checks that the evaluation process is alive
 TrialKey = tuple[str, int]  # (policy spec, tree seed)
 
 
@@ -138,7 +142,7 @@ def check_output_folder(config: EvalConfig, out: Path) -> None:
 
 
 def _mismatch_message(out: Path, theirs: dict, ours: dict) -> str:
-    old, new = theirs.get("scan", {}), ours["scan"]
+    old, new = _flatten(theirs.get("scan", {})), _flatten(ours["scan"])
     changed = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
     details = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in changed) or "unknown"
     return (
@@ -146,6 +150,17 @@ def _mismatch_message(out: Path, theirs: dict, ours: dict) -> str:
         f"{theirs.get('scan_config_hash')} there, {ours['scan_config_hash']} now; {details}). "
         "Use another --out, or delete its trials/ folder to start over."
     )
+
+
+def _flatten(config: dict, prefix: str = "") -> dict:
+    """Nested config dict -> {"modeler.ransac_inlier_m": 0.03, ...}."""
+    flat = {}
+    for key, value in config.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
 
 
 def pending_trials(config: EvalConfig, out: Path) -> list[TrialKey]:
@@ -183,15 +198,18 @@ def run_trials(
         return done
     context = multiprocessing.get_context("spawn")
     workers = min(config.workers, len(tasks))
-    with cf.ProcessPoolExecutor(workers, mp_context=context) as pool:
-        futures = {pool.submit(_run_task, task): task for task in tasks}
-        try:
-            for future in cf.as_completed(futures):
-                done.append(future.result())
-                on_done(done[-1])
-        except BaseException:  # a failed trial or Ctrl-C: drop the queue, keep what is saved
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
+    pool = cf.ProcessPoolExecutor(
+        workers, mp_context=context, initializer=_init_worker, initargs=(os.getpid(),)
+    )
+    try:
+        futures = [pool.submit(_run_task, task) for task in tasks]
+        for future in cf.as_completed(futures):
+            done.append(future.result())
+            on_done(done[-1])
+    except BaseException:  # a failed trial or Ctrl-C: stop at once, the saved trials stay
+        _stop_pool(pool)
+        raise
+    pool.shutdown()
     return done
 
 
@@ -232,6 +250,27 @@ class _Task:
     scan: ScanConfig
     scan_hash: str
     out: Path
+
+
+def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
+    """Cancel the queued trials and end the workers now, dropping the trials they were running."""
+    processes = list((pool._processes or {}).values())  # no public API for this before 3.14
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+    logger.warning("stopped %d workers; their running trials were dropped", len(processes))
+
+
+def _init_worker(parent_pid: int) -> None:
+    """Worker set-up: Ctrl-C is the parent's to handle, and the worker ends with the parent."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def exit_when_orphaned() -> None:  # the parent was killed: its pool will never read results
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=exit_when_orphaned, daemon=True).start()
 
 
 def _run_task(task: _Task) -> TrialKey:

@@ -30,6 +30,7 @@ from recon.model import TreeModel
 
 TRIAL_FORMAT = 1
 TRIALS_DIR = "trials"
+FILE_MODE = 0o644
 Scalar = float | int | str | bool | None
 
 
@@ -168,6 +169,7 @@ def write_json_atomic(path: Path, data: dict) -> None:
     text = json.dumps(data, allow_nan=False)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
+        os.fchmod(fd, FILE_MODE)  # mkstemp makes it private
         with os.fdopen(fd, "w") as handle:
             handle.write(text)
             handle.flush()
@@ -176,6 +178,14 @@ def write_json_atomic(path: Path, data: dict) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def remove_partial_writes(out: Path) -> int:
+    """Delete temporary files left by a killed run under ``out/trials``; returns how many."""
+    partial = list((out / TRIALS_DIR).rglob(".*.tmp"))
+    for path in partial:
+        path.unlink(missing_ok=True)
+    return len(partial)
 
 
 def save_trial(path: Path, record: TrialRecord) -> None:

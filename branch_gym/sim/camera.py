@@ -1,10 +1,9 @@
-"""The eye-in-hand camera: pinhole intrinsics; RGB, metric depth and instance labels from pybullet.
+"""The eye-in-hand camera: RGB, metric depth and instance labels rendered by pybullet.
 
-Conventions (the same as ``recon/camera.py``, which this module must not import):
-
-* Camera frame is OpenCV's: x right, y down, z forward along the optical axis.
-* Pixel ``(u, v)`` = (column, row); the centre of the top-left pixel is (0, 0).
-* ``T_world_camera`` is a (4, 4) transform with ``p_world = T_world_camera @ p_camera``.
+The camera's geometry (:class:`CameraSpec`, :func:`check_pose`, :func:`look_at`,
+:func:`pixel_grid` and the default intrinsics) lives in ``branch_gym/sim/camera_spec.py`` and is
+re-exported here, with its conventions: OpenCV camera axes, pixel ``(u, v)`` = (column, row),
+``p_world = T_world_camera @ p_camera``.
 
 pybullet wants OpenGL matrices: a view matrix into a camera looking along -z with y up, and a
 projection matrix to normalised device coordinates (NDC). The renderers then map NDC to pixels
@@ -16,8 +15,6 @@ so rendered images follow the pinhole model ``u = fx x / z + cx`` to a small fra
 
 from __future__ import annotations
 
-import functools
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Protocol
@@ -27,15 +24,39 @@ import numpy as np
 import pybullet
 
 from branch_gym.sim.bullet import Bullet
+from branch_gym.sim.camera_spec import (
+    DEFAULT_FAR_M,
+    DEFAULT_FOCAL_PX,
+    DEFAULT_HEIGHT_PX,
+    DEFAULT_HFOV_DEG,
+    DEFAULT_NEAR_M,
+    DEFAULT_WIDTH_PX,
+    CameraSpec,
+    check_pose,
+    look_at,
+    pixel_grid,
+)
 
-# Authors' simulated camera (reference.md, "Simulated world"): 320x240, 42 deg horizontal FoV.
-DEFAULT_WIDTH_PX = 320
-DEFAULT_HEIGHT_PX = 240
-DEFAULT_HFOV_DEG = 42.0
-DEFAULT_FOCAL_PX = (DEFAULT_WIDTH_PX / 2.0) / math.tan(math.radians(DEFAULT_HFOV_DEG) / 2.0)
-# Clip planes (our choice): branches come no closer than a few cm; the backdrop is a few m away.
-DEFAULT_NEAR_M = 0.01
-DEFAULT_FAR_M = 10.0
+__all__ = [
+    "BACKGROUND_LABEL",
+    "DEFAULT_FAR_M",
+    "DEFAULT_FOCAL_PX",
+    "DEFAULT_HEIGHT_PX",
+    "DEFAULT_HFOV_DEG",
+    "DEFAULT_NEAR_M",
+    "DEFAULT_WIDTH_PX",
+    "BackgroundPainter",
+    "CameraImages",
+    "CameraSpec",
+    "Lighting",
+    "check_pose",
+    "look_at",
+    "pixel_grid",
+    "projection_matrix",
+    "render_camera",
+    "render_snapshot",
+    "view_matrix",
+]
 
 # Where each renderer samples pixel (u, v), as the NDC offset (a, b) in
 # ndc_x = 2 (u + a) / W - 1 and ndc_y = 1 - 2 (v + b) / H (measured, see module docstring).
@@ -47,94 +68,6 @@ _OPENCV_TO_OPENGL = np.diag([1.0, -1.0, -1.0, 1.0])  # flips camera y and z
 _LINK_SHIFT = 24  # pybullet segmentation value = body + ((link + 1) << 24)
 _BODY_MASK = (1 << _LINK_SHIFT) - 1
 BACKGROUND_LABEL = 0
-_ROTATION_TOLERANCE = 1e-6  # on R R^T - I entries
-_IDENTITY_3 = np.eye(3)
-_HOMOGENEOUS_ROW = np.array([0.0, 0.0, 0.0, 1.0])
-
-
-@dataclass(frozen=True)
-class CameraSpec:
-    """Pinhole camera without distortion, plus the renderer's clip planes.
-
-    Attributes:
-        width: Image width in pixels.
-        height: Image height in pixels.
-        fx: Focal length along u in pixels (default: 42 deg HFOV at 320 px, ~416.8).
-        fy: Focal length along v in pixels.
-        cx: Principal point u in pixels (pixel centres at integers).
-        cy: Principal point v in pixels.
-        near_m: Near clip distance along the optical axis, metres.
-        far_m: Far clip distance along the optical axis, metres.
-    """
-
-    width: int = DEFAULT_WIDTH_PX
-    height: int = DEFAULT_HEIGHT_PX
-    fx: float = DEFAULT_FOCAL_PX
-    fy: float = DEFAULT_FOCAL_PX
-    cx: float = DEFAULT_WIDTH_PX / 2.0
-    cy: float = DEFAULT_HEIGHT_PX / 2.0
-    near_m: float = DEFAULT_NEAR_M
-    far_m: float = DEFAULT_FAR_M
-
-    def __post_init__(self) -> None:
-        for name in ("width", "height"):
-            value = getattr(self, name)
-            if int(value) != value or value <= 0:
-                raise ValueError(f"{name} must be a positive integer, got {value}")
-        for name in ("fx", "fy", "cx", "cy", "near_m", "far_m"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
-        if self.fx <= 0 or self.fy <= 0:
-            raise ValueError(f"fx and fy must be positive, got fx={self.fx}, fy={self.fy}")
-        if not 0 < self.near_m < self.far_m:
-            raise ValueError(
-                f"need 0 < near_m < far_m, got near_m={self.near_m}, far_m={self.far_m}"
-            )
-
-    @classmethod
-    def from_hfov(
-        cls,
-        width: int,
-        height: int,
-        hfov_deg: float,
-        near_m: float = DEFAULT_NEAR_M,
-        far_m: float = DEFAULT_FAR_M,
-    ) -> CameraSpec:
-        """Square pixels from the horizontal field of view; principal point (width/2, height/2)."""
-        if not 0.0 < hfov_deg < 180.0:
-            raise ValueError(f"hfov_deg must be in (0, 180), got {hfov_deg}")
-        focal = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
-        return cls(width, height, focal, focal, width / 2.0, height / 2.0, near_m, far_m)
-
-    @property
-    def K(self) -> np.ndarray:
-        """(3, 3) calibration matrix."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    def project(
-        self, points_world: np.ndarray, T_world_camera: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Pinhole projection.
-
-        Args:
-            points_world: (N, 3) points in metres, world frame.
-            T_world_camera: (4, 4) camera pose.
-
-        Returns:
-            pixels (N, 2) as (u, v), NaN at or behind the camera; depth_m (N,) camera-frame z.
-        """
-        T_camera_world = np.linalg.inv(check_pose(T_world_camera))
-        p_camera = (
-            np.asarray(points_world, float) @ T_camera_world[:3, :3].T + T_camera_world[:3, 3]
-        )
-        z = p_camera[:, 2]
-        pixels = np.full((len(z), 2), np.nan)
-        front = z > 0
-        pixels[front] = p_camera[front, :2] / z[front, None] * [self.fx, self.fy] + [
-            self.cx,
-            self.cy,
-        ]
-        return pixels, z
 
 
 @dataclass(frozen=True)
@@ -185,59 +118,6 @@ class BackgroundPainter(Protocol):
         spec: CameraSpec,
     ) -> None:
         """Write colour and depth in place where ``empty`` (H, W) bool is True."""
-
-
-def check_pose(T_world_camera: np.ndarray) -> np.ndarray:
-    """Validate a (4, 4) rigid transform; returns it as a float array.
-
-    Raises:
-        ValueError: wrong shape, non-finite entries, or not a proper rotation.
-    """
-    T = np.asarray(T_world_camera, dtype=float)
-    if T.shape != (4, 4):
-        raise ValueError(f"T_world_camera must have shape (4, 4), got {T.shape}")
-    if not np.all(np.isfinite(T)):
-        raise ValueError("T_world_camera contains NaN or infinite values")
-    R = T[:3, :3]
-    # Plain max/abs: np.allclose costs ~40 us, and this runs twice per frame.
-    if np.abs(R @ R.T - _IDENTITY_3).max() > _ROTATION_TOLERANCE or np.linalg.det(R) < 0:
-        raise ValueError("T_world_camera rotation block is not a proper rotation")
-    if np.abs(T[3] - _HOMOGENEOUS_ROW).max() > _ROTATION_TOLERANCE:
-        raise ValueError("T_world_camera last row must be [0, 0, 0, 1]")
-    return T
-
-
-@functools.lru_cache(maxsize=8)
-def pixel_grid(spec: CameraSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel coordinates as broadcastable float32 arrays: u (1, W) and v (H, 1) (cached)."""
-    u = np.arange(spec.width, dtype=np.float32)[None, :]
-    v = np.arange(spec.height, dtype=np.float32)[:, None]
-    u.flags.writeable = False
-    v.flags.writeable = False
-    return u, v
-
-
-def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = (0.0, 0.0, 1.0)) -> np.ndarray:
-    """(4, 4) T_world_camera at ``eye`` with the optical axis (+z) towards ``target``.
-
-    The image's "up" (-y) is as close to ``up`` (world) as possible.
-
-    Raises:
-        ValueError: ``eye`` equals ``target``, or the view direction is parallel to ``up``.
-    """
-    eye, target, up = (np.asarray(a, dtype=float) for a in (eye, target, up))
-    forward = target - eye
-    if np.linalg.norm(forward) < 1e-12:
-        raise ValueError("look_at: eye and target coincide")
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, up)
-    if np.linalg.norm(right) < 1e-9:
-        raise ValueError("look_at: view direction is parallel to up")
-    right /= np.linalg.norm(right)
-    T = np.eye(4)
-    T[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
-    T[:3, 3] = eye
-    return T
 
 
 def view_matrix(T_world_camera: np.ndarray) -> list[float]:

@@ -1,5 +1,6 @@
 """UR5e kinematics in numpy, from the DH table: joint frames, forward kinematics, geometric
-Jacobian, SO(3) log/exp, pose errors and a damped-Newton inverse kinematics.
+Jacobian, SO(3) log/exp, pose errors and a damped-Newton inverse kinematics; also
+:func:`check_transform`, the validation of a target pose shared by the robot's motion and IK.
 
 Conventions: standard (distal) DH, ``T_{i-1,i} = Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i)``
 (``branch_gym/sim/ur5e_spec.py``); lengths in metres, angles in radians.

@@ -16,16 +16,12 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import replace
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from branch_gym.sim import ur5e
 from branch_gym.sim.kinematics import check_transform
-from branch_gym.sim.robot_config import MotionStatus
-
-if TYPE_CHECKING:
-    from branch_gym.sim.robot_config import RobotConfig
+from branch_gym.sim.robot_config import MotionStatus, RobotConfig
 
 logger = logging.getLogger(__name__)
 

@@ -9,16 +9,12 @@ pose, camera mount, IK tolerances and joint limits. :class:`CameraIKMixin` is on
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from branch_gym.sim import ur5e
 from branch_gym.sim.kinematics import check_transform
-from branch_gym.sim.robot_config import InverseKinematicsError
-
-if TYPE_CHECKING:
-    from branch_gym.sim.robot_config import RobotConfig
+from branch_gym.sim.robot_config import InverseKinematicsError, RobotConfig
 
 
 class CameraIKMixin:

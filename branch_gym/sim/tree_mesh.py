@@ -6,6 +6,9 @@ twist), and returns vertices, normals, texture coordinates and triangles wound c
 seen from outside: back faces are culled, and an inward winding would show the far inner wall, a
 plausible image with a +2r depth error (reference.md, "Gotchas"). Flat caps close both ends.
 
+Ring placement and orientation (resampling, ring selection, rotation-minimising frames) live in
+``branch_gym/sim/tube_rings.py``; this module builds the triangles and writes OBJ files.
+
 Texture coordinates: ``u`` runs around the circumference and wraps a whole number of times (no
 seam); ``v`` is arc length along the branch in units of the same tile width, so one texture tile is
 square on the surface and ``v`` is continuous from base to tip.
@@ -18,19 +21,32 @@ rings render the same image (measured: no pixel differs between 5 mm and 200 mm 
 
 from __future__ import annotations
 
-import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from branch_gym.sim.tube_rings import (
+    check_polyline,
+    densify,
+    ring_tangents,
+    rotation_minimising_frames,
+    select_rings,
+)
+
+__all__ = [
+    "TILE_WIDTH_M",
+    "TubeMesh",
+    "TubeMeshConfig",
+    "rotation_minimising_frames",
+    "tube_mesh",
+    "write_obj",
+]
+
 # Texture tile width on the surface: 512 texels wrap once around a 5 mm radius branch, i.e.
 # ~0.06 mm per texel (reference.md, "Tracking on rendered images").
 TILE_WIDTH_M = 2.0 * math.pi * 0.005
-_DENSE_STEP_M = 0.001  # working resolution of the centerline (the ground truth is 1 mm dense)
-_MIN_SEGMENT_M = 1e-9  # shorter steps are duplicate points
-_SAME_TANGENT_SQUARED = 1e-18  # |t1 - reflected t0|^2 below this: no second reflection needed
 
 
 @dataclass(frozen=True)
@@ -108,10 +124,10 @@ def tube_mesh(
         ValueError: malformed points or radii, a non-positive radius, or a zero-length polyline.
     """
     config = config or TubeMeshConfig()
-    dense, dense_radii, arc = _densify(*_check_polyline(points, radii))
-    rings = _select_rings(dense, dense_radii, arc, config)
+    dense, dense_radii, arc = densify(*check_polyline(points, radii))
+    rings = select_rings(dense, dense_radii, arc, config)
     centres, ring_radii, ring_arc = dense[rings], dense_radii[rings], arc[rings]
-    tangents = _ring_tangents(centres)
+    tangents = ring_tangents(centres)
     normals = rotation_minimising_frames(centres, tangents)
     binormals = np.cross(tangents, normals)
 
@@ -154,38 +170,6 @@ def tube_mesh(
     )
 
 
-def rotation_minimising_frames(centres: np.ndarray, tangents: np.ndarray) -> np.ndarray:
-    """Reference normals along a curve by the double-reflection method (Wang et al. 2008).
-
-    Args:
-        centres: (R, 3) points on the curve in metres.
-        tangents: (R, 3) unit tangents at those points.
-
-    Returns:
-        (R, 3) unit normals perpendicular to the tangents, turning as little as possible; the third
-        axis of each right-handed frame is ``cross(tangent, normal)``.
-    """
-    helper = np.eye(3)[int(np.argmin(np.abs(tangents[0])))]
-    normals = np.empty_like(centres)
-    normals[0] = np.cross(tangents[0], helper)
-    normals[0] /= np.linalg.norm(normals[0])
-    for i in range(len(centres) - 1):
-        v1 = centres[i + 1] - centres[i]
-        c1 = float(v1 @ v1)
-        reflected_normal = normals[i] - (2.0 / c1) * float(v1 @ normals[i]) * v1
-        reflected_tangent = tangents[i] - (2.0 / c1) * float(v1 @ tangents[i]) * v1
-        v2 = tangents[i + 1] - reflected_tangent
-        c2 = float(v2 @ v2)
-        n = (
-            reflected_normal - (2.0 / c2) * float(v2 @ reflected_normal) * v2
-            if c2 > _SAME_TANGENT_SQUARED
-            else reflected_normal
-        )
-        n = n - float(n @ tangents[i + 1]) * tangents[i + 1]  # remove round-off drift
-        normals[i + 1] = n / np.linalg.norm(n)
-    return normals
-
-
 def write_obj(mesh: TubeMesh, path: Path, texture_png: Path | None = None) -> Path:
     """Write ``mesh`` as a Wavefront OBJ with ``vt`` and ``vn`` (and an MTL naming the texture).
 
@@ -214,82 +198,6 @@ def write_obj(mesh: TubeMesh, path: Path, texture_png: Path | None = None) -> Pa
     ]
     path.write_text("\n".join(header + body) + "\n")
     return path
-
-
-def _check_polyline(points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    points = np.asarray(points, dtype=float)
-    radii = np.asarray(radii, dtype=float)
-    if points.ndim != 2 or points.shape[1] != 3 or len(points) < 2:
-        raise ValueError(f"points must have shape (N>=2, 3), got {points.shape}")
-    if radii.shape != (len(points),):
-        raise ValueError(f"radii must have shape ({len(points)},), got {radii.shape}")
-    if not (np.all(np.isfinite(points)) and np.all(np.isfinite(radii))):
-        raise ValueError("points and radii must be finite")
-    if np.any(radii <= 0):
-        raise ValueError(f"radii must be positive, got min {radii.min()}")
-    return points, radii
-
-
-def _densify(points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Resample to equal steps of at most ``_DENSE_STEP_M``: points, radii and arc length (m)."""
-    steps = np.linalg.norm(np.diff(points, axis=0), axis=1)
-    keep = np.concatenate([[True], steps > _MIN_SEGMENT_M])
-    if keep.sum() < 2:
-        raise ValueError("the polyline has zero length")
-    points, radii = points[keep], radii[keep]
-    arc = np.concatenate([[0.0], np.cumsum(steps[keep[1:]])])
-    grid = np.linspace(0.0, arc[-1], max(2, math.ceil(arc[-1] / _DENSE_STEP_M) + 1))
-    dense = np.stack([np.interp(grid, arc, points[:, k]) for k in range(3)], axis=1)
-    return dense, np.interp(grid, arc, radii), grid
-
-
-def _select_rings(
-    points: np.ndarray, radii: np.ndarray, arc: np.ndarray, config: TubeMeshConfig
-) -> np.ndarray:
-    """Sorted indices of the dense points that become rings.
-
-    Ramer-Douglas-Peucker on (x, y, z, scaled r) keeps the centerline within
-    ``max_chord_error_m`` of the dense one and the radius within ``max_radius_error_m``; then
-    stretches longer than ``max_ring_spacing_m`` are split evenly.
-    """
-    radius_weight = config.max_chord_error_m / config.max_radius_error_m
-    augmented = np.hstack([points, radius_weight * radii[:, None]])
-    keep = {0, len(points) - 1}
-    stack = [(0, len(points) - 1)]
-    while stack:
-        first, last = stack.pop()
-        if last - first < 2:
-            continue
-        worst, distance = _farthest_from_chord(augmented, first, last)
-        if distance > config.max_chord_error_m:
-            keep.add(worst)
-            stack += [(first, worst), (worst, last)]
-    rings = sorted(keep)
-    split = [rings[0]]
-    for first, last in itertools.pairwise(rings):
-        pieces = max(1, math.ceil((arc[last] - arc[first]) / config.max_ring_spacing_m - 1e-9))
-        split += np.linspace(first, last, pieces + 1)[1:].round().astype(int).tolist()
-    return np.unique(split)
-
-
-def _farthest_from_chord(points: np.ndarray, first: int, last: int) -> tuple[int, float]:
-    """Index and distance of the point of ``points[first:last+1]`` farthest from that chord."""
-    chord = points[last] - points[first]
-    offsets = points[first : last + 1] - points[first]
-    along = np.clip(offsets @ chord / max(float(chord @ chord), _MIN_SEGMENT_M**2), 0.0, 1.0)
-    distances = np.linalg.norm(offsets - along[:, None] * chord, axis=1)
-    worst = int(np.argmax(distances))
-    return first + worst, float(distances[worst])
-
-
-def _ring_tangents(centres: np.ndarray) -> np.ndarray:
-    """(R, 3) unit tangents: bisectors of the adjacent segments, segment direction at the ends."""
-    segments = np.diff(centres, axis=0)
-    segments /= np.linalg.norm(segments, axis=1, keepdims=True)
-    tangents = np.empty_like(centres)
-    tangents[0], tangents[-1] = segments[0], segments[-1]
-    tangents[1:-1] = segments[:-1] + segments[1:]
-    return tangents / np.linalg.norm(tangents, axis=1, keepdims=True)
 
 
 def _cap(

@@ -1,0 +1,113 @@
+"""Simulator costs on one core: rendering a 320x240 frame and resetting the world.
+
+Figures (medians, milliseconds):
+
+* ``render_frame_ms``: one RGB + depth + segmentation frame (``World.render``) at camera heights
+  along a straight-up scan (0.275 -> 0.75 m) of a few paper-default trees, background included.
+* ``render_frame_bare_ms``: the same scan with only the primary branch (no secondaries, no
+  clutter) and the background disabled: the renderer's floor.
+* ``reset_ms``: ``World.reset`` with a new tree each time (tree drawing, meshes, textures, robot
+  and home-pose IK).
+
+Only the timed call is measured: the camera motion between frames is not.
+"""
+
+from __future__ import annotations
+
+import time
+
+import cv2
+import numpy as np
+
+from branch_gym.sim.home import SCAN_END_HEIGHT_M
+from branch_gym.sim.scene import BackgroundConfig, SceneConfig
+from branch_gym.sim.trees import TreeConfig, TreeGT, generate_tree
+from branch_gym.sim.world import World, WorldConfig
+
+RENDER_SEEDS = (0, 1, 2)  # paper-default trees scanned for the render figures
+RESET_SEEDS = tuple(range(100, 140))  # 40 new trees for the reset figure (>= 30 asked)
+# Frames every 1 cm of climb: ~48 frames per tree; the camera moves at 0.1 m/s for 0.1 s (the
+# arm's joint-speed limit is far away) and no frame is rendered in between.
+CLIMB_SPEED_MPS = 0.1
+CLIMB_STEP_S = 0.1
+WARMUP_SEEDS = (98, 99)  # first builds pay lazy imports and allocator growth: not timed
+S_TO_MS = 1e3
+
+
+def _up_twist(speed_mps: float) -> np.ndarray:
+    """(6,) camera-frame twist straight up (image up is camera -y in the level scan pose)."""
+    return np.array([0.0, -speed_mps, 0.0, 0.0, 0.0, 0.0])
+
+
+def _scan_render_ms(world: World) -> list[float]:
+    """Milliseconds of each ``world.render()`` along a straight-up scan from the home pose."""
+    times = []
+    while world.T_world_camera[2, 3] <= SCAN_END_HEIGHT_M:
+        start = time.perf_counter()
+        world.render()
+        times.append((time.perf_counter() - start) * S_TO_MS)
+        if not world.apply_camera_twist(_up_twist(CLIMB_SPEED_MPS), CLIMB_STEP_S).ok:
+            break
+    return times
+
+
+def _bare_tree(seed: int) -> TreeGT:
+    """A paper-default primary branch drawn from ``seed``, alone (no secondaries, no clutter)."""
+    config = TreeConfig()
+    full = generate_tree(config, np.random.default_rng(seed), seed=seed)
+    return TreeGT(primary=full.primary, seed=seed)
+
+
+def render_frame_ms(seeds: tuple[int, ...] = RENDER_SEEDS, bare: bool = False) -> float:
+    """Median render time per frame over straight-up scans of the trees of ``seeds``.
+
+    Args:
+        seeds: Tree seeds (paper-default distribution).
+        bare: Render the primary branch alone, without background.
+
+    Returns:
+        Median milliseconds per ``World.render`` call.
+    """
+    config = WorldConfig()
+    if bare:
+        config = WorldConfig(scene=SceneConfig(background=BackgroundConfig(enabled=False)))
+    world = World(config)
+    try:
+        times: list[float] = []
+        for seed in seeds:
+            world.reset(seed, tree=_bare_tree(seed) if bare else None)
+            world.render()  # warm-up: first frame of a scene
+            times += _scan_render_ms(world)
+        return float(np.median(times))
+    finally:
+        world.close()
+
+
+def reset_ms(seeds: tuple[int, ...] = RESET_SEEDS) -> float:
+    """Median ``World.reset`` time in milliseconds, a new tree per reset."""
+    world = World()
+    try:
+        for seed in WARMUP_SEEDS:
+            world.reset(seed)
+        times = []
+        for seed in seeds:
+            start = time.perf_counter()
+            world.reset(seed)
+            times.append((time.perf_counter() - start) * S_TO_MS)
+        return float(np.median(times))
+    finally:
+        world.close()
+
+
+def run() -> dict[str, float]:
+    """Simulator benchmark figures (module docstring), medians in milliseconds, one core."""
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # one core, as the targets (OpenCV ignores OMP_NUM_THREADS)
+    try:
+        return {
+            "render_frame_ms": render_frame_ms(),
+            "render_frame_bare_ms": render_frame_ms(bare=True),
+            "reset_ms": reset_ms(),
+        }
+    finally:
+        cv2.setNumThreads(threads)

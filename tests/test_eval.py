@@ -1,0 +1,408 @@
+"""Tests of the evaluation: metrics JSON, trial files, aggregation, tables, resume, the CLI."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from branch_gym.control import FollowControllerConfig
+from branch_gym.evaluation.plots import write_figures
+from branch_gym.evaluation.report import (
+    TABLE_ROWS,
+    build_summary,
+    format_cell,
+    format_comparison,
+    format_table,
+    summarise_policy,
+    write_report,
+)
+from branch_gym.evaluation.runner import (
+    ConfigMismatchError,
+    EvalConfig,
+    check_output_folder,
+    load_records,
+    pending_trials,
+)
+from branch_gym.evaluation.trials import (
+    TrialRecord,
+    json_scalar,
+    load_trial,
+    policy_slug,
+    remove_partial_writes,
+    save_trial,
+    trial_path,
+)
+from branch_gym.scan import ScanConfig
+from branch_gym.sim.trees import BranchGT, TreeGT
+from recon.metrics import TreeMetrics, aggregate
+from recon.model import BranchModel, TreeModel
+
+ROOT = Path(__file__).resolve().parents[1]
+POLICIES = ("none", "periodic:22.5:1.5")
+SUMMARY_KEYS = {
+    "trials",
+    "failures",
+    "pb_residual_mm",
+    "pb_radius_rmse_mm",
+    "sb_residual_mm",
+    "sb_radius_mm",
+    "spurious_pct",
+    "missed_pct",
+    "duplicate_pct",
+    "scan_time_s",
+    "rotations",
+}
+MEAN_STD_KEYS = {
+    "pb_residual_mm",
+    "pb_radius_rmse_mm",
+    "sb_residual_mm",
+    "sb_radius_mm",
+    "scan_time_s",
+    "rotations",
+}
+SHORT_SCAN = ["--end-height", "0.45"]  # ~7 s of simulated scan, 1.5-3.5 s of CPU per trial
+
+
+def _load_cli():
+    """eval.py as a module (it is a script at the repository root, not a package)."""
+    spec = importlib.util.spec_from_file_location("eval_cli", ROOT / "eval.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+eval_cli = _load_cli()
+
+
+# ----------------------------------------------------------------------------- hand-made trials
+def _metrics(pb_mm: list[float], sb_mm: list[float], counts: tuple[int, int, int, int]):
+    """Metrics with the given residuals (mm); radius errors are a tenth of them."""
+    n_gt, n_matched, n_spurious, n_duplicates = counts
+    pb, sb = np.array(pb_mm) / 1e3, np.array(sb_mm) / 1e3
+    return TreeMetrics(
+        pb_residuals_m=pb,
+        pb_radius_errors_m=pb / 10.0,
+        sb_residuals_m=sb,
+        sb_radius_errors_m=sb / 10.0,
+        matches=[(j, j) for j in range(n_matched)],
+        n_gt=n_gt,
+        n_matched=n_matched,
+        n_missed=n_gt - n_matched,
+        n_spurious=n_spurious,
+        n_duplicates=n_duplicates,
+        n_ignored_reconstructed=0,
+        scanned_top_z_m=0.75,
+    )
+
+
+def _record(
+    policy: str,
+    seed: int,
+    metrics: TreeMetrics,
+    scan_time_s: float = 20.0,
+    rotations: int = 0,
+    failure: str | None = None,
+    config_hash: str = "h",
+) -> TrialRecord:
+    z = np.linspace(0.0, 1.0, 11)
+    primary = np.column_stack([np.zeros_like(z), np.zeros_like(z), z])
+    side = np.array([[0.0, 0.0, 0.5], [0.05, 0.0, 0.52], [0.1, 0.0, 0.55]])
+    truth = TreeGT(BranchGT(primary, np.full(11, 0.005)), [BranchGT(side, np.full(3, 0.004))])
+    model = TreeModel(BranchModel(primary[3:8] + 0.001, np.full(5, 0.0051)), [])
+    row = {"seed": seed, "policy": policy, "failure": failure or "", **metrics.to_dict()}
+    return TrialRecord(
+        policy=policy,
+        seed=seed,
+        config_hash=config_hash,
+        row={k: json_scalar(v) for k, v in row.items()},
+        metrics=metrics,
+        model=model,
+        truth=truth,
+        scan_time_s=scan_time_s,
+        rotations=rotations,
+        failure=failure,
+    )
+
+
+def _records() -> list[TrialRecord]:
+    return [
+        _record("none", 0, _metrics([1.0, 3.0], [2.0], (4, 3, 1, 0)), 18.0),
+        _record("none", 1, _metrics([2.0], [], (2, 2, 0, 1)), 22.0, failure="singularity"),
+        _record("periodic:22.5:1.5", 0, _metrics([4.0], [5.0], (4, 4, 0, 0)), 30.0, 4),
+        _record("periodic:22.5:1.5", 1, _metrics([], [], (2, 1, 0, 0)), 34.0, 6),
+    ]
+
+
+def _nan_equal(a: float, b: float) -> bool:
+    return (math.isnan(a) and math.isnan(b)) or a == b
+
+
+# ----------------------------------------------------------------------------- metrics JSON
+def test_tree_metrics_json_round_trip_is_lossless_and_nan_safe() -> None:
+    metrics = TreeMetrics(
+        pb_residuals_m=np.array([0.1 + 0.2, 1e-17, np.nan, np.inf]),
+        pb_radius_errors_m=np.array([-1.0 / 3.0, -np.inf, 0.0, 2.5]),
+        sb_residuals_m=np.zeros(0),
+        sb_radius_errors_m=np.zeros(0),
+        matches=[(0, 2), (1, 0)],
+        n_gt=3,
+        n_matched=2,
+        n_missed=1,
+        n_spurious=1,
+        n_duplicates=0,
+        n_ignored_reconstructed=1,
+        scanned_top_z_m=0.7312345678901234,
+    )
+    text = json.dumps(metrics.to_json_dict(), allow_nan=False)  # strict JSON
+    back = TreeMetrics.from_json_dict(json.loads(text))
+    for name in ("pb_residuals_m", "pb_radius_errors_m", "sb_residuals_m", "sb_radius_errors_m"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(metrics, name))
+    assert back.matches == metrics.matches
+    # Derived fields (NaN for the empty SB arrays) and the flat row are the same.
+    row, back_row = metrics.to_dict(), back.to_dict()
+    assert back_row.keys() == row.keys()
+    for key, value in row.items():
+        assert (
+            _nan_equal(back_row[key], value) if isinstance(value, float) else back_row[key] == value
+        )
+    assert back.scanned_top_z_m == metrics.scanned_top_z_m
+
+
+def test_aggregate_of_reloaded_metrics_is_identical() -> None:
+    trials = [r.metrics for r in _records()]
+    reloaded = [
+        TreeMetrics.from_json_dict(json.loads(json.dumps(t.to_json_dict()))) for t in trials
+    ]
+    original, again = aggregate(trials), aggregate(reloaded)
+    assert original.keys() == again.keys()
+    assert all(_nan_equal(original[k], again[k]) for k in original)
+
+
+# ----------------------------------------------------------------------------- trial files
+def test_trial_file_round_trip_and_atomic_write(tmp_path: Path) -> None:
+    record = _records()[1]
+    path = trial_path(tmp_path, record.policy, record.seed)
+    save_trial(path, record)
+    assert path == tmp_path / "trials" / "none" / "1.json"
+    assert [p.name for p in path.parent.iterdir()] == ["1.json"]  # no temporary file left
+    back = load_trial(path)
+    assert back.to_json_dict() == record.to_json_dict()
+    assert back.failure == "singularity" and back.row["sb_residual_mean_m"] == "nan"
+    stale = path.with_name(".2.json.abc123.tmp")  # left by a run killed while writing
+    stale.write_text("{")
+    assert remove_partial_writes(tmp_path) == 1 and not stale.exists() and path.exists()
+    path.write_text("{not json")
+    with pytest.raises(ValueError, match=r"cannot read trial file .*1\.json"):
+        load_trial(path)
+
+
+def test_json_scalar_and_policy_slug() -> None:
+    assert json_scalar(np.float32(0.5)) == 0.5 and json_scalar(np.int64(3)) == 3
+    assert json_scalar(float("nan")) == "nan" and json_scalar(-math.inf) == "-inf"
+    assert json_scalar(None) is None and json_scalar("x") == "x"
+    with pytest.raises(TypeError):
+        json_scalar([1, 2])
+    assert policy_slug("periodic:22.5:1.5") == "periodic_22.5_1.5"
+    assert policy_slug("ppo:models/x.zip") == "ppo_models_x.zip"
+
+
+# ----------------------------------------------------------------------------- aggregation
+def test_summary_values_and_shape_on_hand_made_trials() -> None:
+    config = EvalConfig(POLICIES, trees=2)
+    summary = build_summary(config, _records())
+    assert list(summary["policies"]) == list(POLICIES)
+    assert summary["config"]["seeds"] == [0, 1] and "workers" not in summary["config"]
+    for entry in summary["policies"].values():
+        assert set(entry) == SUMMARY_KEYS
+        assert all(set(entry[k]) == {"mean", "std"} for k in MEAN_STD_KEYS)
+    none = summary["policies"]["none"]
+    assert (none["trials"], none["failures"]) == (2, 1)  # the failed scan still counts
+    # PB residual pooled over the points of both trials, in mm: mean(1, 3, 2) = 2.
+    assert none["pb_residual_mm"]["mean"] == pytest.approx(2.0)
+    assert none["pb_residual_mm"]["std"] == pytest.approx(np.std([1.0, 3.0, 2.0]))
+    rmse_mm = [math.sqrt(5.0) / 10.0, 0.2]  # per trial, then mean over trials
+    assert none["pb_radius_rmse_mm"]["mean"] == pytest.approx(np.mean(rmse_mm))
+    assert none["sb_residual_mm"]["mean"] == pytest.approx(2.0)
+    assert none["sb_radius_mm"] == {"mean": pytest.approx(0.2), "std": pytest.approx(0.0)}
+    # Totals over trials: 1 missed, 1 spurious, 1 duplicate of 6 in-scope GT branches.
+    assert none["missed_pct"] == none["spurious_pct"] == none["duplicate_pct"]
+    assert none["missed_pct"] == pytest.approx(100.0 / 6.0)
+    assert none["scan_time_s"] == {"mean": 20.0, "std": 2.0}
+    periodic = summary["policies"]["periodic:22.5:1.5"]
+    assert periodic["rotations"] == {"mean": 5.0, "std": 1.0}
+    # Undefined values are null, and the summary is strict JSON.
+    assert summarise_policy(_records()[3:])["pb_residual_mm"] == {"mean": None, "std": None}
+    json.dumps(summary, allow_nan=False)
+
+
+def test_table_layout_and_formatting() -> None:
+    summary = build_summary(EvalConfig(POLICIES, trees=2), _records())
+    lines = format_table(summary).splitlines()
+    assert [c.strip() for c in lines[0].strip("|").split("|")] == ["", *POLICIES]
+    labels = [line.strip("|").split("|")[0].strip() for line in lines[2:]]
+    assert labels == [label for label, _ in TABLE_ROWS]
+    cells = {line.split("|")[1].strip(): line.split("|")[2].strip() for line in lines[2:]}
+    assert cells["PB residual (mm)"] == "2.0 (0.8)"
+    assert cells["Missed %"] == "16.7"
+    assert (cells["Trials"], cells["Failures"]) == ("2", "1")
+    assert format_cell({"mean": None, "std": None}) == "n/a"
+    assert format_cell({"mean": 3.14159, "std": None}) == "3.1"
+    assert format_cell(None) == "n/a" and format_cell(12) == "12" and format_cell(4.25) == "4.2"
+
+
+def test_comparison_shows_the_paper_values_where_the_paper_has_the_column() -> None:
+    records = [*_records(), _record("periodic:30:1", 0, _metrics([1.0], [], (1, 1, 0, 0)))]
+    records += [_record("periodic:30:1", 1, _metrics([1.0], [], (1, 1, 0, 0)))]
+    config = EvalConfig((*POLICIES, "periodic:30:1"), trees=2)
+    rows = format_comparison(build_summary(config, records)).splitlines()
+    header = [c.strip() for c in rows[0].strip("|").split("|")]
+    assert header == ["", "none", "paper", "periodic:22.5:1.5", "paper", "periodic:30:1", "paper"]
+    pb = [c.strip() for c in rows[2].strip("|").split("|")]
+    assert pb[2] == "3.5 (4.0)" and pb[4] == "4.2 (4.9)" and pb[6] == "-"
+    missed = next(r for r in rows if r.startswith("| Missed"))
+    assert [c.strip() for c in missed.strip("|").split("|")][2:5:2] == ["7.0", "3.4"]
+
+
+def test_report_files_on_hand_made_trials(tmp_path: Path) -> None:
+    config = EvalConfig(POLICIES, trees=2)
+    records = _records()
+    summary = write_report(tmp_path, config, records)
+    assert json.loads((tmp_path / "summary.json").read_text()) == json.loads(json.dumps(summary))
+    table = (tmp_path / "table.md").read_text()
+    assert "| PB residual (mm)" in table
+    assert "Failure reasons: none: singularity 1\n" in table
+    lines = (tmp_path / "trials.csv").read_text().splitlines()
+    assert len(lines) == 5 and lines[0].startswith("seed,policy,failure,")
+    assert lines[2].startswith("1,none,singularity,")
+    files = write_figures(tmp_path, summary, records, [1])
+    assert [f.name for f in files] == ["missed_vs_scan_time.png", "tree_1.png"]
+    assert all(f.read_bytes()[:4] == b"\x89PNG" for f in files)
+
+
+# ----------------------------------------------------------------------------- validation
+def test_unknown_policy_is_refused_before_any_work(tmp_path: Path, capsys) -> None:
+    with pytest.raises(ValueError, match="unknown rotation policy spec 'spin:3'"):
+        EvalConfig(("none", "spin:3"), trees=1)
+    with pytest.raises(ValueError, match="repeated"):
+        EvalConfig(("none", "none"), trees=1)
+    out = tmp_path / "out"
+    with pytest.raises(SystemExit) as exit_info:
+        eval_cli.main(["--policies", "none", "periodic:22.5", "--trees", "1", "--out", str(out)])
+    assert exit_info.value.code == eval_cli.EXIT_USAGE
+    assert "unknown rotation policy spec 'periodic:22.5'" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_plot_seed_outside_the_run_is_refused(tmp_path: Path, capsys) -> None:
+    argv = ["--policies", "none", "--trees", "2", "--seed", "5", "--out", str(tmp_path / "o")]
+    assert eval_cli.main([*argv, "--plot-trees", "0"]) == eval_cli.EXIT_USAGE
+    assert "not among the evaluated seeds 5..6" in capsys.readouterr().err
+    assert not (tmp_path / "o" / "trials").exists()
+
+
+def test_output_folder_of_another_config_is_refused(tmp_path: Path) -> None:
+    check_output_folder(EvalConfig(POLICIES, trees=1), tmp_path)
+    check_output_folder(EvalConfig(POLICIES[:1], trees=3, workers=2), tmp_path)  # same scan
+    faster = EvalConfig(POLICIES, trees=1, scan=ScanConfig(speed_mps=0.05))
+    with pytest.raises(ConfigMismatchError, match=r"different scan configuration.*speed_mps"):
+        check_output_folder(faster, tmp_path)
+    oracle = ScanConfig(tracker="oracle", controller=FollowControllerConfig(k_u=2.0))
+    with pytest.raises(ConfigMismatchError) as error:
+        check_output_folder(EvalConfig(POLICIES, trees=1, scan=oracle), tmp_path)
+    assert "controller.k_u: 1.0 -> 2.0, tracker: 'lk' -> 'oracle')" in str(error.value)
+
+
+def test_trial_file_of_another_config_is_refused(tmp_path: Path) -> None:
+    config = EvalConfig(("none",), trees=2)
+    for seed in (0, 1):
+        record = _record("none", seed, _metrics([1.0], [], (1, 1, 0, 0)))
+        record.config_hash = config.scan_hash if seed == 0 else "0123456789abcdef"
+        save_trial(trial_path(tmp_path, "none", seed), record)
+    assert pending_trials(config, tmp_path) == []
+    with pytest.raises(ConfigMismatchError, match=r"1\.json was run under scan configuration"):
+        load_records(config, tmp_path)
+
+
+# ----------------------------------------------------------------------------- real scans
+def _cli(out: Path, trees: int, workers: int, *extra: str) -> list[str]:
+    return [
+        "--policies",
+        *POLICIES,
+        "--trees",
+        str(trees),
+        "--seed",
+        "0",
+        "--workers",
+        str(workers),
+        "--out",
+        str(out),
+        *SHORT_SCAN,
+        *extra,
+    ]
+
+
+@pytest.mark.slow
+def test_cli_outputs_on_real_scans(tmp_path: Path, capsys) -> None:
+    out = tmp_path / "run"
+    assert eval_cli.main(_cli(out, trees=2, workers=1)) == 0
+    stdout = capsys.readouterr().out
+    assert "4 trials run, 0 loaded" in stdout and "3.5 (4.0)" in stdout  # the paper beside ours
+
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary) == {"policies", "config"}
+    assert list(summary["policies"]) == list(POLICIES)  # the CLI specs, in CLI order
+    for entry in summary["policies"].values():
+        assert set(entry) == SUMMARY_KEYS and entry["trials"] == 2
+        assert all(set(entry[k]) == {"mean", "std"} for k in MEAN_STD_KEYS)
+        assert 0.0 <= entry["pb_residual_mm"]["mean"] < 20.0  # mm, not m
+    assert summary["policies"]["periodic:22.5:1.5"]["rotations"]["mean"] >= 1.0
+    assert summary["config"]["scan"]["end_height_m"] == 0.45
+
+    table = (out / "table.md").read_text()
+    assert "| Failures" in table and "periodic:22.5:1.5" in table
+    rows = (out / "trials.csv").read_text().splitlines()
+    assert [tuple(r.split(",")[:2]) for r in rows[1:]] == [
+        ("0", "none"),
+        ("1", "none"),
+        ("0", "periodic:22.5:1.5"),
+        ("1", "periodic:22.5:1.5"),
+    ]
+    for name in ("missed_vs_scan_time.png", "tree_0.png", "tree_1.png"):
+        assert (out / name).read_bytes()[:4] == b"\x89PNG"
+    trial = json.loads((out / "trials" / "periodic_22.5_1.5" / "1.json").read_text())
+    assert trial["policy"] == "periodic:22.5:1.5" and trial["seed"] == 1
+    assert {"row", "metrics", "model", "truth", "config_hash"} <= set(trial)
+
+    # Another scan configuration into the same folder: refused before any scan.
+    before = {p: p.stat().st_mtime_ns for p in (out / "trials").rglob("*.json")}
+    assert eval_cli.main(_cli(out, 2, 1, "--speed", "0.03")) == eval_cli.EXIT_USAGE
+    error = capsys.readouterr().err
+    assert "different scan configuration" in error and "speed_mps: 0.025 -> 0.03" in error
+    assert {p: p.stat().st_mtime_ns for p in (out / "trials").rglob("*.json")} == before
+
+
+@pytest.mark.slow
+def test_resume_runs_only_new_trials_and_results_do_not_depend_on_workers(
+    tmp_path: Path, capsys
+) -> None:
+    out = tmp_path / "run"
+    assert eval_cli.main(_cli(out, trees=1, workers=2)) == 0
+    old = sorted((out / "trials").rglob("0.json"))
+    mtimes = [p.stat().st_mtime_ns for p in old]
+    assert len(old) == 2 and "2 trials run, 0 loaded" in capsys.readouterr().out
+
+    assert eval_cli.main(_cli(out, trees=2, workers=2)) == 0  # in a pool of 2
+    assert "2 trials run, 2 loaded" in capsys.readouterr().out
+    assert [p.stat().st_mtime_ns for p in old] == mtimes  # the old trials were not re-run
+    first = (out / "summary.json").read_bytes()
+
+    # Re-run one trial in this process instead of a pool: the summary is identical.
+    (out / "trials" / "none" / "0.json").unlink()
+    assert eval_cli.main(_cli(out, trees=2, workers=1)) == 0
+    assert "1 trials run, 3 loaded" in capsys.readouterr().out
+    assert (out / "summary.json").read_bytes() == first
