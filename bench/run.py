@@ -27,6 +27,9 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     parser.add_argument("--out", type=Path, default=DEFAULT_OUT)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
+    import cv2
+
+    cv2.setNumThreads(1)  # OpenCV ignores OMP_NUM_THREADS
     results: dict[str, float] = {}
     if args.out.exists():  # keep figures of benchmarks not run this time
         results.update(json.loads(args.out.read_text()))
