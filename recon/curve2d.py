@@ -32,13 +32,20 @@ import logging
 
 import numpy as np
 
-from recon.curve2d_primary import find_primary
+from recon.curve2d_primary import PrimaryPrior, find_primary
 from recon.curve2d_secondary import find_secondaries
 from recon.curve2d_types import NEWTON_ITERATIONS, Curve2D, Curve2DConfig, MaskCurves, make_curve2d
 from recon.path_search import SearchGraph
 from recon.skeleton import extract_skeleton, preprocess_mask
 
-__all__ = ["Curve2D", "Curve2DConfig", "MaskCurves", "fit_mask_curves", "points_in_mask"]
+__all__ = [
+    "Curve2D",
+    "Curve2DConfig",
+    "MaskCurves",
+    "PrimaryPrior",
+    "fit_mask_curves",
+    "points_in_mask",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -47,6 +54,7 @@ def fit_mask_curves(
     mask: np.ndarray,
     config: Curve2DConfig = Curve2DConfig(),  # noqa: B008  (frozen: safe to share)
     motion_direction_uv: np.ndarray | None = None,
+    prior: PrimaryPrior | None = None,
 ) -> MaskCurves:
     """Fit the primary and secondary branch curves of a binary mask.
 
@@ -55,6 +63,8 @@ def fit_mask_curves(
         config: Fitting parameters (paper defaults).
         motion_direction_uv: Image direction (u, v) of the scan, overriding
             ``config.motion_direction_uv`` (e.g. for a rotated camera).
+        prior: The 3D model's primary projected into this frame; when given, a primary that
+            agrees with it is preferred over a higher-scoring one that does not.
 
     Returns:
         The curves; ``primary`` is None for empty, tiny, speckled or blob-like masks.
@@ -73,7 +83,7 @@ def fit_mask_curves(
     clean = preprocess_mask(mask, config.skeleton)
     graph = extract_skeleton(clean, config.skeleton)
     sg = SearchGraph(graph)
-    path, curve, score, evaluated, truncated = find_primary(sg, direction, config)
+    path, curve, score, evaluated, truncated = find_primary(sg, direction, config, prior)
     if truncated:
         logger.debug("primary path search truncated after %d paths", evaluated)
     no_primary = MaskCurves(None, [], truncated, evaluated, graph, clean)

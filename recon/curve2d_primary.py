@@ -8,6 +8,7 @@ each and scores it by its skeleton inliers' spread along the motion direction
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -107,10 +108,39 @@ class _PrimaryScorer:
         return self.canvas[uv[:, 1], uv[:, 0]] > 0
 
 
+@dataclass(frozen=True)
+class PrimaryPrior:
+    """Where the 3D model says the primary is: its visible points projected into this frame.
+
+    Attributes:
+        pixels: (K, 2) projected model points (u, v).
+        tolerance_px: A model point agrees with a curve within this distance (paper IV: 4 px).
+        min_fraction: A curve agrees with the model when this fraction of points does (60 %).
+    """
+
+    pixels: np.ndarray
+    tolerance_px: float
+    min_fraction: float
+
+    def agreement(self, curve: CubicBezier) -> float:
+        """Fraction of the model points within ``tolerance_px`` of ``curve``."""
+        dist = curve.closest_params(self.pixels, newton_iterations=NEWTON_ITERATIONS)[1]
+        return float(np.mean(dist <= self.tolerance_px))
+
+
 def find_primary(
-    sg: SearchGraph, direction: np.ndarray, config: Curve2DConfig
+    sg: SearchGraph,
+    direction: np.ndarray,
+    config: Curve2DConfig,
+    prior: PrimaryPrior | None = None,
 ) -> tuple[tuple[int, ...] | None, CubicBezier | None, float, int, bool]:
-    """Best-scoring DAG path: (path, curve, score, paths evaluated, truncated)."""
+    """Best-scoring DAG path: (path, curve, score, paths evaluated, truncated).
+
+    With a ``prior`` (the projected 3D model), when the best-scoring curve disagrees with the
+    model but another path agrees, the best-scoring path among those that agree is chosen: a side
+    branch that rises along the view after a rotation must not replace a well-supported primary.
+    Without an agreeing path the plain best is returned (and the modeler finds it Inconsistent).
+    """
     adjacency = oriented_adjacency(sg, direction)
     progress = sg.graph.node_uv @ direction
     has_incoming = np.zeros(sg.graph.n_nodes, dtype=bool)
@@ -161,7 +191,29 @@ def find_primary(
             residual = _rms_residual(curve, pixels)
             if residual < best_residual:
                 best, best_residual = (paths[i], curve, score), residual
+    if prior is not None and best[1] is not None and prior.agreement(best[1]) < prior.min_fraction:
+        agreeing = _best_agreeing_path(sg, paths, scorer, prior)
+        if agreeing is not None:
+            best = agreeing
     return best[0], best[1], best[2], len(paths), truncated
+
+
+def _best_agreeing_path(
+    sg: SearchGraph, paths: list[tuple[int, ...]], scorer: _PrimaryScorer, prior: PrimaryPrior
+) -> tuple[tuple[int, ...], CubicBezier, float] | None:
+    """Highest-scoring path whose curve agrees with the prior (no bound pruning: all are fitted)."""
+    best = None
+    for path in paths:
+        pixels = sg.path_pixels(path)[0]
+        if len(pixels) < MIN_FIT_PIXELS:
+            continue
+        curve = fit_bezier(pixels)
+        if prior.agreement(curve) < prior.min_fraction:
+            continue
+        score = scorer.score(curve, *scorer.curve_window(curve))
+        if best is None or score > best[2]:
+            best = (path, curve, score)
+    return best
 
 
 def _rms_residual(curve: CubicBezier, pixels: np.ndarray) -> float:

@@ -22,8 +22,9 @@ from enum import Enum
 
 import numpy as np
 
+from recon.camera import project_points
 from recon.config import ModelerConfig
-from recon.curve2d import Curve2DConfig, MaskCurves, fit_mask_curves
+from recon.curve2d import Curve2DConfig, MaskCurves, PrimaryPrior, fit_mask_curves
 from recon.frame import Frame
 from recon.lifting import lift_pixels
 from recon.model import TreeModel
@@ -168,7 +169,7 @@ class Modeler:
         timings: dict[str, float] = {}
 
         t0 = time.perf_counter()
-        curves = fit_mask_curves(frame.mask, self.curve_config)
+        curves = fit_mask_curves(frame.mask, self.curve_config, prior=self._prior(frame))
         timings["curve2d_ms"] = (time.perf_counter() - t0) * 1e3
         report = IterationReport(
             self._iterations,
@@ -249,6 +250,19 @@ class Modeler:
         timings["secondaries_ms"] = (time.perf_counter() - t0) * 1e3
         timings["total_ms"] = (time.perf_counter() - t_start) * 1e3
         return report
+
+    def _prior(self, frame: Frame) -> PrimaryPrior | None:
+        """The model's visible primary projected into ``frame`` (guides the 2D primary choice)."""
+        if self._primary is None:
+            return None
+        cfg = self.config
+        pixels, depth = project_points(self._primary.points, frame.T_world_camera, frame.intrinsics)
+        visible = (depth > 0) & frame.intrinsics.in_image(pixels, cfg.image_margin_px)
+        if visible.sum() < 2:
+            return None
+        return PrimaryPrior(
+            pixels[visible], cfg.consistency_tolerance_px, cfg.consistency_min_fraction
+        )
 
     def _lift_secondaries(
         self, frames: list[Frame], curves: MaskCurves

@@ -20,6 +20,10 @@ _OFFSETS = np.array([(-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1),
 _WALK_ORDER = [0, 2, 4, 6, 1, 3, 5, 7]
 # A crossing number (0->1 transitions around a pixel) of 3 or more marks a junction pixel.
 _JUNCTION_CROSSINGS = 3
+# So do 4 or more neighbours: where two thick branches cross, skeletonize can leave a 2x2 block
+# whose pixels all have crossing number 2 (the arms meet diagonally), which would otherwise split
+# the crossing into two unconnected arcs (measured on rendered masks after a camera rotation).
+_JUNCTION_NEIGHBOURS = 4
 # A walk must leave its start node by this many pixels before it may close a loop on it.
 _MIN_LOOP_PIXELS = 4
 
@@ -50,9 +54,10 @@ def build_graph(
     node_of = [-1] * len(rows)
     node_pixels: list[list[int]] = []
     kinds: list[str] = []
-    for p in np.flatnonzero(crossings >= _JUNCTION_CROSSINGS):  # merge touching junction pixels
+    is_junction = (crossings >= _JUNCTION_CROSSINGS) | (count >= _JUNCTION_NEIGHBOURS)
+    for p in np.flatnonzero(is_junction):  # merge touching junction pixels
         if node_of[p] < 0:
-            _flood_junction(int(p), len(kinds), nb, crossings, node_of, node_pixels)
+            _flood_junction(int(p), len(kinds), nb, is_junction, node_of, node_pixels)
             kinds.append("junction")
     # Endpoints: one neighbour, or two that touch each other (the tip of a staircase).
     for p in np.flatnonzero((count == 1) | ((count == 2) & (crossings == 1))):
@@ -97,7 +102,7 @@ def _flood_junction(
     seed: int,
     node: int,
     nb: list[int],
-    crossings: np.ndarray,
+    is_junction: np.ndarray,
     node_of: list[int],
     node_pixels: list[list[int]],
 ) -> None:
@@ -108,7 +113,7 @@ def _flood_junction(
         p = stack.pop()
         cluster.append(p)
         for q in nb[8 * p : 8 * p + 8]:
-            if q >= 0 and node_of[q] < 0 and crossings[q] >= _JUNCTION_CROSSINGS:
+            if q >= 0 and node_of[q] < 0 and is_junction[q]:
                 node_of[q] = node
                 stack.append(q)
     node_pixels.append(cluster)

@@ -1,0 +1,195 @@
+"""Configuration of :class:`branch_gym.env.BranchScanEnv`: frozen dataclasses and the keyword parser.
+
+``gymnasium.make("BranchScan-v0", tracker="oracle", tree="hard", end_height_m=0.5)`` reaches
+:func:`env_config_from_kwargs`, which turns the keywords into an :class:`EnvConfig`. The
+shortcuts ``tracker``, ``segmenter``, ``tree``, ``end_height_m`` and ``speed_mps`` change the scan
+settings (``scan``, a :class:`branch_gym.scan.ScanConfig`); every other keyword is an
+:class:`EnvConfig` field.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import numbers
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+from branch_gym.env.layout import ACTION_TYPES, DISCRETE_ANGLES_DEG, THETA_MAX_DEG
+from branch_gym.env.reward import RewardConfig
+from branch_gym.scan import ScanConfig
+from branch_gym.sim.trees import TreeConfig
+
+TREE_PRESETS = ("paper", "cluttered", "hard")
+SCAN_SHORTCUTS = ("tracker", "segmenter", "tree", "end_height_m", "speed_mps")
+# Rotation of 180 deg or more about the branch would look at it from behind the tree's far side.
+_MAX_THETA_DEG = 90.0
+
+
+@dataclass(frozen=True)
+class ObservationConfig:
+    """How the pipeline's state becomes an observation.
+
+    Attributes:
+        image_height: Observation image rows (our choice: the 240-row camera image / 4; SB3's
+            default CNN needs at least 36).
+        image_width: Observation image columns (our choice: 320 / 4).
+        count_scale: Branch counts are divided by this and clipped to [0, 1] (our choice: the
+            paper's trees hold at most 5 secondaries, the "hard" preset 8).
+        travel_clip_fov: Travel since the last rotation is clipped to [0, this] vertical FoVs
+            (our choice: a whole 0.275 -> 0.75 m scan is ~4 FoVs of 0.115 m).
+        explained_tolerance_px: A 2D side-branch sample is explained by a projected 3D secondary
+            within this many pixels of its drawn width (our choice: twice the paper's 4 px
+            consistency tolerance, section IV).
+        explained_min_fraction: A 2D candidate is explained when at least this fraction of its
+            samples (outside the primary's silhouette) are (our choice: a majority).
+    """
+
+    image_height: int = 60
+    image_width: int = 80
+    count_scale: float = 10.0
+    travel_clip_fov: float = 10.0
+    explained_tolerance_px: float = 8.0
+    explained_min_fraction: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("image_height", "image_width"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 1):
+                raise ValueError(f"ObservationConfig.{name} must be a positive int, got {value!r}")
+        for name in ("count_scale", "travel_clip_fov", "explained_tolerance_px"):
+            value = getattr(self, name)
+            if not (_is_number(value) and math.isfinite(value) and value > 0):
+                raise ValueError(f"ObservationConfig.{name} must be positive, got {value!r}")
+        if not (_is_number(self.explained_min_fraction) and 0.0 < self.explained_min_fraction <= 1):
+            raise ValueError(
+                "ObservationConfig.explained_min_fraction must be in (0, 1], got "
+                f"{self.explained_min_fraction!r}"
+            )
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything a :class:`branch_gym.env.BranchScanEnv` is made of.
+
+    Attributes:
+        action_type: "continuous" (a target angle in [-1, 1] x theta_max) or "discrete" (an
+            index into ``discrete_angles_deg``).
+        theta_max_deg: Angle of the continuous action's bounds and the normaliser of angles in
+            the observation (the paper's largest angle, Table I: 45 deg).
+        discrete_angles_deg: Target angles of the discrete action (the paper's angles, Table I).
+        flatten: Return one flat float32 vector instead of the Dict (MLP-only libraries).
+        info_timings: Put wall-clock stage timings in ``info["timings_ms"]``. They are
+            measurements, not simulation state: two runs with the same seed differ there, so
+            turn them off where infos are compared for determinism (gymnasium's check_env).
+        observation: Observation image size and scales.
+        reward: Reward weights.
+        scan: The scan (tracker, segmenter, tree distribution, speed, end height, world).
+    """
+
+    action_type: str = "continuous"
+    theta_max_deg: float = THETA_MAX_DEG
+    discrete_angles_deg: tuple[float, ...] = DISCRETE_ANGLES_DEG
+    flatten: bool = False
+    info_timings: bool = True
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    scan: ScanConfig = field(default_factory=ScanConfig)
+
+    def __post_init__(self) -> None:
+        if self.action_type not in ACTION_TYPES:
+            raise ValueError(
+                f"EnvConfig.action_type must be one of {ACTION_TYPES}, got {self.action_type!r}"
+            )
+        theta = self.theta_max_deg
+        if not (_is_number(theta) and 0.0 < theta <= _MAX_THETA_DEG):
+            raise ValueError(
+                f"EnvConfig.theta_max_deg must be in (0, {_MAX_THETA_DEG}], got {theta!r}"
+            )
+        try:
+            angles = tuple(self.discrete_angles_deg)
+        except TypeError:
+            angles = ()
+        if not angles or not all(
+            _is_number(a) and math.isfinite(a) and abs(a) <= theta for a in angles
+        ):
+            raise ValueError(
+                "EnvConfig.discrete_angles_deg must be a non-empty sequence of angles within "
+                f"+-theta_max_deg ({theta}), got {self.discrete_angles_deg!r}"
+            )
+        object.__setattr__(self, "discrete_angles_deg", tuple(float(a) for a in angles))
+        for name, kind in (
+            ("flatten", bool),
+            ("info_timings", bool),
+            ("observation", ObservationConfig),
+            ("reward", RewardConfig),
+            ("scan", ScanConfig),
+        ):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(
+                    f"EnvConfig.{name} must be a {kind.__name__}, got {getattr(self, name)!r}"
+                )
+
+
+def tree_config(tree: str | TreeConfig) -> TreeConfig:
+    """A tree distribution from a preset name ("paper", "cluttered", "hard") or a TreeConfig.
+
+    Raises:
+        ValueError: anything else, naming the presets.
+    """
+    if isinstance(tree, TreeConfig):
+        return tree
+    if isinstance(tree, str) and tree in TREE_PRESETS:
+        return getattr(TreeConfig, tree)()
+    raise ValueError(f"tree must be one of {TREE_PRESETS} or a TreeConfig, got {tree!r}")
+
+
+def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
+    """Parse the environment's keyword arguments (see the module docstring).
+
+    ``reward`` and ``observation`` accept a config or a dict of its fields; ``scan`` a
+    :class:`ScanConfig` that the shortcuts then modify.
+
+    Raises:
+        ValueError: an unknown keyword (named, with the closest valid one) or a bad value (the
+            configs name the offending field).
+    """
+    valid = [f.name for f in fields(EnvConfig)] + list(SCAN_SHORTCUTS)
+    for key in kwargs:
+        if key not in valid:
+            close = difflib.get_close_matches(key, valid, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise ValueError(f"unknown BranchScanEnv keyword {key!r}{hint}; valid: {sorted(valid)}")
+    kwargs = dict(kwargs)
+    shortcuts = {k: kwargs.pop(k) for k in SCAN_SHORTCUTS if k in kwargs}
+    scan = kwargs.pop("scan", None) or ScanConfig()
+    if not isinstance(scan, ScanConfig):
+        raise ValueError(f"scan must be a ScanConfig, got {scan!r}")
+    if "tree" in shortcuts:
+        tree = tree_config(shortcuts.pop("tree"))
+        scan = replace(scan, world=replace(scan.world, tree=tree))
+    for key, valid_type in (("tracker", str), ("segmenter", str)):
+        if key in shortcuts and not isinstance(shortcuts[key], valid_type):
+            raise ValueError(f"{key} must be a str, got {shortcuts[key]!r}")
+    for key in ("end_height_m", "speed_mps"):
+        if key in shortcuts and not _is_number(shortcuts[key]):
+            raise ValueError(f"{key} must be a number, got {shortcuts[key]!r}")
+    if shortcuts:
+        scan = scan.replace(**shortcuts)  # ScanConfig names the offending field
+    if isinstance(kwargs.get("reward"), dict):
+        kwargs["reward"] = RewardConfig.from_dict(kwargs["reward"])
+    if isinstance(kwargs.get("observation"), dict):
+        observation = kwargs["observation"]
+        names = {f.name for f in fields(ObservationConfig)}
+        unknown = sorted(set(observation) - names)
+        if unknown:
+            raise ValueError(
+                f"unknown ObservationConfig key(s) {unknown}: expected some of {sorted(names)}"
+            )
+        kwargs["observation"] = ObservationConfig(**observation)
+    return EnvConfig(scan=scan, **kwargs)
+
+
+def _is_number(value: object) -> bool:
+    """A real number (bool excluded)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)

@@ -1,0 +1,105 @@
+"""The action and observation layout of :class:`branch_gym.env.BranchScanEnv`, as named constants.
+
+Policies read observation fields by name (``obs["vector"][..., VectorField.TRAVEL_FOV]``), never by
+magic index. This module is pure numpy: agents import it without pulling in the simulator.
+
+Flattened observations (``flatten=True``, ``BranchScanFlat-v0``) put the vector first, then the
+image scaled to [0, 1] in channel-first order, so the vector fields keep the same indices in both
+layouts (:func:`vector_part` reads either).
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+import numpy as np
+
+ACTION_TYPES = ("continuous", "discrete")
+# Largest rotation of the paper's experiments (Table I: 22.5 and 45 deg): the continuous action
+# [-1, 1] spans [-THETA_MAX_DEG, THETA_MAX_DEG].
+THETA_MAX_DEG = 45.0
+# The discrete action picks one of these target angles (deg): the paper's +-22.5, +-45 and 0.
+DISCRETE_ANGLES_DEG = (-45.0, -22.5, 0.0, 22.5, 45.0)
+
+
+class VectorField(IntEnum):
+    """Index of each entry of the observation vector (float32, all normalised)."""
+
+    ANGLE = 0  # current rotation about the branch / theta_max, in [-1, 1]
+    TRAVEL_FOV = 1  # vertical travel since the last rotation, in vertical FoVs at z_target
+    PROGRESS = 2  # fraction of the scan height range covered, in [0, 1]
+    OUTCOME_CONSISTENT = 3  # one-hot outcome of the latest modeling iteration
+    OUTCOME_INCONSISTENT = 4
+    OUTCOME_RESTART = 5
+    MODEL_SECONDARIES = 6  # secondary branches in the 3D model / count_scale
+    MODEL_SECONDARIES_IN_VIEW = 7  # ... of which project into the current image / count_scale
+    CANDIDATES_2D = 8  # 2D side-branch candidates in the latest mask / count_scale
+    UNCONFIRMED_CANDIDATES = 9  # ... not explained by a projected 3D secondary / count_scale
+    PREVIOUS_ACTION = 10  # previous target angle / theta_max, in [-1, 1] (0 after reset)
+
+
+VECTOR_SIZE = len(VectorField)
+OUTCOME_FIELDS = (
+    VectorField.OUTCOME_CONSISTENT,
+    VectorField.OUTCOME_INCONSISTENT,
+    VectorField.OUTCOME_RESTART,
+)
+COUNT_FIELDS = (
+    VectorField.MODEL_SECONDARIES,
+    VectorField.MODEL_SECONDARIES_IN_VIEW,
+    VectorField.CANDIDATES_2D,
+    VectorField.UNCONFIRMED_CANDIDATES,
+)
+
+
+class ImageChannel(IntEnum):
+    """Channels of the (3, H, W) uint8 observation image (255 = fully covered pixel)."""
+
+    MASK = 0  # the latest segmentation mask (cleaned, as the 2D stage used it)
+    MODEL = 1  # the 3D model projected into the current view, lines as wide as the branches
+    UNCONFIRMED = 2  # 2D side-branch candidates that no projected 3D secondary explains
+
+
+N_CHANNELS = len(ImageChannel)
+IMAGE_KEY = "image"
+VECTOR_KEY = "vector"
+
+
+def vector_bounds(travel_clip_fov: float) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) float32 bounds of the observation vector.
+
+    Args:
+        travel_clip_fov: Upper bound of :attr:`VectorField.TRAVEL_FOV` (vertical FoVs).
+    """
+    low = np.zeros(VECTOR_SIZE, dtype=np.float32)
+    high = np.ones(VECTOR_SIZE, dtype=np.float32)
+    low[VectorField.ANGLE] = low[VectorField.PREVIOUS_ACTION] = -1.0
+    high[VectorField.TRAVEL_FOV] = travel_clip_fov
+    return low, high
+
+
+def vector_part(obs: dict | np.ndarray) -> np.ndarray:
+    """The observation vector(s) from a Dict or a flattened observation, single or batched.
+
+    Args:
+        obs: ``{"image": ..., "vector": (..., VECTOR_SIZE)}`` or a flat (..., D) array whose first
+            ``VECTOR_SIZE`` entries are the vector.
+
+    Returns:
+        (VECTOR_SIZE,) or (N, VECTOR_SIZE) float array (a view where possible).
+
+    Raises:
+        ValueError: the observation holds no vector of the expected size.
+    """
+    vector = obs[VECTOR_KEY] if isinstance(obs, dict) else obs
+    vector = np.asarray(vector)
+    if vector.ndim not in (1, 2) or vector.shape[-1] < VECTOR_SIZE:
+        raise ValueError(
+            f"observation vector must have shape (D,) or (N, D) with D >= {VECTOR_SIZE}, "
+            f"got {vector.shape}"
+        )
+    if isinstance(obs, dict) and vector.shape[-1] != VECTOR_SIZE:
+        raise ValueError(
+            f"obs[{VECTOR_KEY!r}] must have {VECTOR_SIZE} entries, got {vector.shape[-1]}"
+        )
+    return vector[..., :VECTOR_SIZE]
