@@ -244,7 +244,9 @@ class Modeler:
         t0 = time.perf_counter()
         detections = self._lift_secondaries(frames, curves)
         report.n_secondary_detections = len(detections)
-        report.n_new_secondaries = self._secondaries.add_detections(detections, self._primary)
+        report.n_new_secondaries = self._secondaries.add_detections(
+            detections, self._primary, frame.T_world_camera[:3, 3]
+        )
         self._secondaries.update_trust(frame)
         report.n_secondaries = len(self._secondaries.models())
         timings["secondaries_ms"] = (time.perf_counter() - t0) * 1e3

@@ -67,9 +67,18 @@ class SecondaryBranches:
         ]
 
     def add_detections(
-        self, detections: list[SecondaryDetection], primary: BranchModel | None
+        self,
+        detections: list[SecondaryDetection],
+        primary: BranchModel | None,
+        camera_center: np.ndarray | None = None,
     ) -> int:
         """Associate each detection with a model branch or create a connected new one.
+
+        Args:
+            detections: This frame's lifted secondaries.
+            primary: The current primary (for the connection test of new branches).
+            camera_center: (3,) camera position (world); when given, detections seen end-on
+                (``secondary_min_view_angle_deg``) are dropped.
 
         Returns:
             Number of new branches created.
@@ -77,6 +86,8 @@ class SecondaryBranches:
         created = 0
         for det in detections:
             if len(det.points) < self.config.secondary_min_points:
+                continue
+            if camera_center is not None and self._seen_end_on(det.points, camera_center):
                 continue
             target = self._associate(det)
             if target is not None:
@@ -125,6 +136,12 @@ class SecondaryBranches:
                 ):
                     best, best_dist = branch, dist
         return best
+
+    def _seen_end_on(self, points: np.ndarray, camera_center: np.ndarray) -> bool:
+        """The branch direction lies within ``secondary_min_view_angle_deg`` of the viewing ray."""
+        ray = points.mean(axis=0) - camera_center
+        angle = _angle_deg(_direction(points), ray / max(np.linalg.norm(ray), 1e-12))
+        return min(angle, 180.0 - angle) < self.config.secondary_min_view_angle_deg
 
     def _connects(self, points: np.ndarray, primary_points: np.ndarray) -> bool:
         """Paper IV: the ray back from the branch start must pass within 3 cm of the primary."""
