@@ -1,4 +1,4 @@
-"""Run every benchmark, print the medians and write ``bench/results.json`` (one flat key per figure).
+"""Run every benchmark, print the medians, write ``bench/results.json`` (one flat key a figure).
 
 Usage: ``python -m bench.run [--only NAME ...] [--out PATH]``. Each benchmark module exposes
 ``run() -> dict[str, float]``; keys carry their unit (``_ms``, ``_s``, ``_per_s``).

@@ -1,1 +1,34 @@
 """branch_gym: simulator and learning testbed for active branch scanning in orchard robotics."""
+
+from __future__ import annotations
+
+from gymnasium.envs.registration import register, registry
+
+ENV_ID = "BranchScan-v0"  # continuous target angle, Dict observation
+DISCRETE_ENV_ID = "BranchScanDiscrete-v0"  # one of a few fixed angles, Dict observation
+FLAT_ENV_ID = "BranchScanFlat-v0"  # continuous target angle, flat float32 observation
+ENV_IDS = (ENV_ID, DISCRETE_ENV_ID, FLAT_ENV_ID)
+# Step limit of the registered ids (gymnasium's TimeLimit; our choice: generous, a full scan at
+# the paper's settings takes ~48 steps, ~100 with frequent rotations).
+MAX_EPISODE_STEPS = 200
+_ENTRY_POINT = "branch_gym.env.scan_env:BranchScanEnv"  # a string: importing stays light
+
+
+def _register_envs() -> None:
+    """Register the environment ids (idempotent: re-imports and reloads are fine)."""
+    kwargs = {
+        ENV_ID: {"action_type": "continuous"},
+        DISCRETE_ENV_ID: {"action_type": "discrete"},
+        FLAT_ENV_ID: {"action_type": "continuous", "flatten": True},
+    }
+    for env_id, env_kwargs in kwargs.items():
+        if env_id not in registry:
+            register(
+                id=env_id,
+                entry_point=_ENTRY_POINT,
+                max_episode_steps=MAX_EPISODE_STEPS,
+                kwargs=env_kwargs,
+            )
+
+
+_register_envs()

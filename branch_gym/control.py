@@ -80,7 +80,7 @@ class PrimaryBranchController:
     def look_at_point(
         self, primary: BranchModel | None, T_world_camera: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, int] | None:
-        """The model point projected closest to row h/2: (pixel (2,), camera-frame point (3,), index)."""
+        """Model point projected nearest row h/2: (pixel (2,), camera-frame point (3,), index)."""
         if primary is None or len(primary.points) < 2:
             return None
         intr = self.intrinsics

@@ -24,11 +24,13 @@ class ModelerConfig:
             the authors' code used 25 px).
         restart_after_inconsistent: The n-th Inconsistent in a row is a Restart (paper IV: 3rd).
         max_depth_m: Lifted points deeper than this are dropped (paper IV: 1 m).
-        max_reprojection_px: Lifted points with a larger reprojection error are dropped (paper IV: 4 px).
+        max_reprojection_px: Lifted points with a larger reprojection error are dropped
+            (paper IV: 4 px).
         model_reprojection_px: Existing model points further than this from the 2D curve are dropped
             before refitting (paper IV: 4 px).
         ransac_inlier_m: RANSAC inlier threshold for the 3D Bezier fit (paper IV: 3 cm).
-        ransac_min_inlier_fraction: Below this inlier fraction the frame is Inconsistent (paper IV: 60 %).
+        ransac_min_inlier_fraction: Below this inlier fraction the frame is Inconsistent
+            (paper IV: 60 %).
         ransac_iterations: RANSAC hypotheses per fit (our choice: enough for 40 % outliers).
         min_lifted_points: Fewest lifted points to (re)initialise the primary (our choice: a cubic
             needs 4; one more gives RANSAC a check).

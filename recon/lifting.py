@@ -51,7 +51,7 @@ class LiftedPoints:
 def radius_from_pixels(
     radius_px: np.ndarray, depth_m: np.ndarray, focal_px: float, paper_formula: bool
 ) -> np.ndarray:
-    """3D radius (m) of a branch whose silhouette half-width is ``radius_px`` at surface depth ``depth_m``.
+    """3D radius (m) of a branch of half-width ``radius_px`` seen at surface depth ``depth_m``.
 
     The paper uses ``r = z r_px / f``. The surface point seen at the silhouette centre lies ``r``
     nearer than the axis, so the axis depth is ``z + r``; solving ``r_px = f r / (z + r)`` gives

@@ -79,7 +79,7 @@ class Modeler:
     """Incremental tree reconstruction from frames (RGB, mask, pose, intrinsics).
 
     Args:
-        tracker: Point tracker used to lift pixels (e.g. :class:`recon.tracking.LucasKanadeTracker`).
+        tracker: Point tracker that lifts pixels (e.g. :class:`recon.tracking.LucasKanadeTracker`).
         config: Modeler thresholds (paper defaults).
         curve_config: 2D curve-fitting parameters (paper defaults).
         seed: Seed of the modeler's own random generator (RANSAC).

@@ -58,7 +58,7 @@ def project_model(
 
 
 def robust_radius_profile(t: np.ndarray, radii: np.ndarray, t_out: np.ndarray) -> np.ndarray:
-    """Radii at ``t_out`` from noisy (t, radius) samples: quartile-fence outlier removal, then a line.
+    """Radii at ``t_out`` from noisy (t, radius) samples: quartile-fence outlier removal, a line.
 
     A branch tapers slowly, so over one view its radius is close to linear in the curve parameter.
     """
@@ -150,7 +150,7 @@ def splice(
 
 
 def _sub_curve(curve: CubicBezier, t0: float, t1: float) -> CubicBezier:
-    """The part of ``curve`` between parameters t0 < t1, as a cubic Bezier (de Casteljau blossom)."""
+    """The part of ``curve`` between parameters t0 < t1, as a cubic Bezier."""
     ts = np.linspace(t0, t1, 4)
     # A cubic's restriction is a cubic: interpolate it through 4 points at its own parameters.
     basis = _bernstein(np.linspace(0.0, 1.0, 4))

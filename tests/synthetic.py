@@ -70,8 +70,8 @@ def rasterise_mask(
         ok = (depth > 1e-3) & np.all(np.isfinite(px), axis=1)
         radius_px = intrinsics.fx * tube.radii[ok] / np.sqrt(depth[ok] ** 2 - tube.radii[ok] ** 2)
         for (u, v), r in zip(px[ok], radius_px, strict=True):
-            centre = (int(round(u * 2**shift)), int(round(v * 2**shift)))
-            cv2.circle(mask, centre, int(round(r * 2**shift)), 1, -1, cv2.LINE_8, shift)
+            centre = (round(u * 2**shift), round(v * 2**shift))
+            cv2.circle(mask, centre, round(r * 2**shift), 1, -1, cv2.LINE_8, shift)
     return mask.astype(bool)
 
 

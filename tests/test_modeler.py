@@ -94,7 +94,7 @@ def test_restart_after_three_inconsistent_masks() -> None:
         if report is not None and report.outcome is Outcome.RESTART:
             break
     assert outcomes[:3] == [Outcome.INCONSISTENT, Outcome.INCONSISTENT, Outcome.RESTART]
-    # After the restart the model in view (+-57 mm about the camera height) lies on the moved branch.
+    # After the restart the model in view (near the camera height) lies on the moved branch.
     points = modeler.model.primary.points
     visible = np.abs(points[:, 2] - h) < 0.04
     x_expected = np.interp(points[visible, 2], moved.points[:, 2], moved.points[:, 0])

@@ -37,7 +37,7 @@ def test_short_scan_reconstructs_primary_and_follows_it(session: ScanSession) ->
         depths.append(depth)
         laterals.append(lateral)
     assert session.stop_reason == "end_height"
-    # The controller kept the branch axis at z_target (+ its radius: z is to the surface) and centred.
+    # The controller kept the branch at z_target (+ its radius: z is to the surface) and centred.
     radius = float(np.median(session.tree.primary.radii))
     assert np.max(np.abs(np.array(depths) - 0.20)) < 0.004 + radius
     assert np.max(np.abs(laterals)) < 0.005

@@ -67,7 +67,7 @@ class Bullet:
         logger.info("EGL renderer plugin loaded (id %d)", plugin)
 
     def reset(self) -> None:
-        """Remove every body, constraint and cached shape: the only leak-free way to rebuild a scene."""
+        """Remove every body, constraint and cached shape: the leak-free way to rebuild a scene."""
         self.p.resetSimulation()
         self.p.setTimeStep(self.config.time_step_s)
         self.p.setGravity(0.0, 0.0, 0.0)

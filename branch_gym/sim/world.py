@@ -1,8 +1,8 @@
 """The simulated world: one procedural tree, the UR5e and its eye-in-hand camera, wired together.
 
-``World.reset(seed)`` rebuilds everything from scratch (``Bullet.reset`` removes every body, the only
-leak-free way in pybullet), draws the tree of that seed, and places the camera at the home pose:
-z_target in front of the primary at the scan start height, level and facing the branch.
+``World.reset(seed)`` rebuilds everything from scratch (``Bullet.reset`` removes every body, the
+only leak-free way in pybullet), draws the tree of that seed, and places the camera at the home
+pose: z_target in front of the primary at the scan start height, level and facing the branch.
 """
 
 from __future__ import annotations
@@ -49,7 +49,8 @@ class WorldConfig:
             raise ValueError(f"WorldConfig.z_target_m must be positive, got {self.z_target_m}")
         if not 0 < self.scan_start_height_m < 1.0:
             raise ValueError(
-                f"WorldConfig.scan_start_height_m must be in (0, 1) m, got {self.scan_start_height_m}"
+                "WorldConfig.scan_start_height_m must be in (0, 1) m, "
+                f"got {self.scan_start_height_m}"
             )
 
 
@@ -91,7 +92,8 @@ class World:
         self.robot = UR5e(self.bullet, self.config.robot)
         self.robot.set_obstacles(self.scene.tree_body_ids)
         start = self.primary_point_at_height(self.config.scan_start_height_m, tree)
-        self.robot.set_joint_positions(home_configuration(self.robot, start, self.config.z_target_m))
+        home_q = home_configuration(self.robot, start, self.config.z_target_m)
+        self.robot.set_joint_positions(home_q)
         self.tree = tree
         return tree
 
@@ -121,7 +123,7 @@ class World:
         return self.robot.apply_camera_twist(twist_camera, dt_s)
 
     def snapshot(self, width: int = 640, height: int = 480) -> np.ndarray:
-        """(height, width, 3) uint8 third-person view of the scene, looking at the camera's height."""
+        """(height, width, 3) uint8 third-person view of the scene at the camera's height."""
         self._require_reset()
         camera = self.robot.T_world_camera()[:3, 3]
         target = (0.0, 0.0, float(camera[2]))
