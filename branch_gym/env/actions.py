@@ -1,8 +1,8 @@
 """Actions of :class:`branch_gym.env.BranchScanEnv`: the target rotation angle about the branch.
 
-* continuous: ``Box(-1, 1, (1,), float32)``; the angle is ``a * theta_max_deg``. Finite values
-  outside [-1, 1] are clipped (documented behaviour, as most continuous-control envs do); NaN,
-  infinities and wrong shapes raise ``ValueError``.
+* continuous: ``Box(-1, 1, (1,), float32)`` (a plain scalar is accepted too); the angle is
+  ``a * theta_max_deg``. Finite values outside [-1, 1] are clipped (documented behaviour, as most
+  continuous-control envs do); NaN, infinities and other shapes raise ``ValueError``.
 * discrete: ``Discrete(n)``; the angle is ``discrete_angles_deg[a]``. A non-integer or
   out-of-range index raises ``ValueError`` (there is no meaningful nearest index to clip to).
 
@@ -51,7 +51,9 @@ class ActionCodec:
             raise ValueError(f"action must be {expected}, got shape {value.shape}: {action!r}")
         if self.discrete:
             return self._discrete_angle(value.reshape(-1)[0])
-        if not np.issubdtype(value.dtype, np.number) or np.issubdtype(value.dtype, np.complexfloating):
+        if not np.issubdtype(value.dtype, np.number) or np.issubdtype(
+            value.dtype, np.complexfloating
+        ):
             raise ValueError(f"action must be a real number, got {action!r} ({value.dtype})")
         a = float(value.reshape(-1)[0])
         if not np.isfinite(a):
@@ -66,8 +68,9 @@ class ActionCodec:
         if not np.issubdtype(np.asarray(index).dtype, np.integer):
             raise ValueError(f"discrete action must be an integer index, got {index!r}")
         if not 0 <= int(index) < len(self.angles_deg):
+            last = len(self.angles_deg) - 1
             raise ValueError(
-                f"discrete action {int(index)} out of range: expected 0..{len(self.angles_deg) - 1} "
+                f"discrete action {int(index)} out of range: expected 0..{last} "
                 f"(angles {self.angles_deg} deg)"
             )
         return self.angles_deg[int(index)]

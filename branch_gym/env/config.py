@@ -1,4 +1,4 @@
-"""Configuration of :class:`branch_gym.env.BranchScanEnv`: frozen dataclasses and the keyword parser.
+"""Configuration of :class:`branch_gym.env.BranchScanEnv`: frozen dataclasses, keywords, options.
 
 ``gymnasium.make("BranchScan-v0", tracker="oracle", tree="hard", end_height_m=0.5)`` reaches
 :func:`env_config_from_kwargs`, which turns the keywords into an :class:`EnvConfig`. The
@@ -18,9 +18,10 @@ from typing import Any
 from branch_gym.env.layout import ACTION_TYPES, DISCRETE_ANGLES_DEG, THETA_MAX_DEG
 from branch_gym.env.reward import RewardConfig
 from branch_gym.scan import ScanConfig
-from branch_gym.sim.trees import TreeConfig
+from branch_gym.sim.trees import TreeConfig, TreeGT
 
 TREE_PRESETS = ("paper", "cluttered", "hard")
+RESET_OPTIONS = ("tree",)
 SCAN_SHORTCUTS = ("tracker", "segmenter", "tree", "end_height_m", "speed_mps")
 # Rotation of 180 deg or more about the branch would look at it from behind the tree's far side.
 _MAX_THETA_DEG = 90.0
@@ -77,11 +78,13 @@ class EnvConfig:
             index into ``discrete_angles_deg``).
         theta_max_deg: Angle of the continuous action's bounds and the normaliser of angles in
             the observation (the paper's largest angle, Table I: 45 deg).
-        discrete_angles_deg: Target angles of the discrete action (the paper's angles, Table I).
+        discrete_angles_deg: Target angles of the discrete action (the paper's angles, Table I);
+            within +-theta_max_deg (checked for discrete envs only).
         flatten: Return one flat float32 vector instead of the Dict (MLP-only libraries).
-        info_timings: Put wall-clock stage timings in ``info["timings_ms"]``. They are
-            measurements, not simulation state: two runs with the same seed differ there, so
-            turn them off where infos are compared for determinism (gymnasium's check_env).
+        info_timings: Put wall-clock stage timings in ``info["timings_ms"]`` (and the wall-clock
+            columns in ``final_metrics``). Off by default: they are measurements, not simulation
+            state, so two runs with the same seed and actions would differ there, and
+            gymnasium's check_env requires equal infos.
         observation: Observation image size and scales.
         reward: Reward weights.
         scan: The scan (tracker, segmenter, tree distribution, speed, end height, world).
@@ -91,7 +94,7 @@ class EnvConfig:
     theta_max_deg: float = THETA_MAX_DEG
     discrete_angles_deg: tuple[float, ...] = DISCRETE_ANGLES_DEG
     flatten: bool = False
-    info_timings: bool = True
+    info_timings: bool = False
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     scan: ScanConfig = field(default_factory=ScanConfig)
@@ -110,12 +113,15 @@ class EnvConfig:
             angles = tuple(self.discrete_angles_deg)
         except TypeError:
             angles = ()
+        # Only a discrete env's angles must lie within the normaliser's range.
+        limit = theta if self.action_type == "discrete" else math.inf
         if not angles or not all(
-            _is_number(a) and math.isfinite(a) and abs(a) <= theta for a in angles
+            _is_number(a) and math.isfinite(a) and abs(a) <= limit for a in angles
         ):
             raise ValueError(
-                "EnvConfig.discrete_angles_deg must be a non-empty sequence of angles within "
-                f"+-theta_max_deg ({theta}), got {self.discrete_angles_deg!r}"
+                "EnvConfig.discrete_angles_deg must be a non-empty sequence of finite angles "
+                f"(within +-theta_max_deg={theta} for a discrete env), "
+                f"got {self.discrete_angles_deg!r}"
             )
         object.__setattr__(self, "discrete_angles_deg", tuple(float(a) for a in angles))
         for name, kind in (
@@ -188,6 +194,22 @@ def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
             )
         kwargs["observation"] = ObservationConfig(**observation)
     return EnvConfig(scan=scan, **kwargs)
+
+
+def tree_from_options(options: dict[str, Any] | None) -> TreeGT | None:
+    """The ``tree`` option of ``reset(options=...)``: a ground truth to scan instead of a seed's.
+
+    Raises:
+        ValueError: an unknown option (named) or a ``tree`` that is not a TreeGT.
+    """
+    options = options or {}
+    unknown = sorted(set(options) - set(RESET_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown reset option(s) {unknown}: expected some of {RESET_OPTIONS}")
+    tree = options.get("tree")
+    if tree is not None and not isinstance(tree, TreeGT):
+        raise ValueError(f"reset option 'tree' must be a TreeGT, got {type(tree).__name__}")
+    return tree
 
 
 def _is_number(value: object) -> bool:

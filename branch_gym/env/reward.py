@@ -70,7 +70,9 @@ class RewardConfig:
         names = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - names)
         if unknown:
-            raise ValueError(f"unknown RewardConfig key(s) {unknown}: expected some of {sorted(names)}")
+            raise ValueError(
+                f"unknown RewardConfig key(s) {unknown}: expected some of {sorted(names)}"
+            )
         return cls(**data)
 
 

@@ -1,0 +1,181 @@
+"""Baseline rotation agents for :class:`branch_gym.env.BranchScanEnv`, with SB3's ``predict``.
+
+They act through the same ``predict(obs, state=None, episode_start=None, deterministic=True) ->
+(action, state)`` signature as stable-baselines3 models, read the observation vector by field
+name (:class:`branch_gym.env.layout.VectorField`), and accept single or batched (vector env)
+observations, Dict or flattened. They make the same decisions as :mod:`agents.rotation`'s
+policies on the same scan:
+
+=========================  =================================  ==========================
+agent                      decision                           rotation.py policy
+=========================  =================================  ==========================
+``NoRotationAgent()``      always angle 0                     ``none``
+``PeriodicAgent(a, f)``    +a, 0, -a, 0, ... every 1 / f      ``periodic:a:f``
+                           vertical FoVs of travel
+=========================  =================================  ==========================
+
+A new episode starts (the periodic phase resets) where ``episode_start`` is True, and on an
+observation from before any modeling iteration (all ``OUTCOME_*`` fields 0: what ``reset()``
+returns, also after a vector env's autoreset).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from branch_gym.env.layout import OUTCOME_FIELDS, THETA_MAX_DEG, VectorField, vector_part
+
+_NO_PHASE = -1  # before the first rotation of an episode
+
+
+class BaselineAgent:
+    """Encodes target angles as actions of a continuous or a discrete env.
+
+    Args:
+        theta_max_deg: The env's ``theta_max_deg`` (continuous action = angle / theta_max).
+        action_angles_deg: The env's ``discrete_angles_deg`` for a discrete env (actions are
+            indices into it); None for a continuous env.
+    """
+
+    def __init__(
+        self,
+        theta_max_deg: float = THETA_MAX_DEG,
+        action_angles_deg: tuple[float, ...] | None = None,
+    ) -> None:
+        if not (math.isfinite(theta_max_deg) and theta_max_deg > 0):
+            raise ValueError(f"theta_max_deg must be positive, got {theta_max_deg}")
+        self.theta_max_deg = float(theta_max_deg)
+        self.action_angles_deg = (
+            None if action_angles_deg is None else tuple(float(a) for a in action_angles_deg)
+        )
+
+    @classmethod
+    def for_env(cls, env: Any, *args: Any, **kwargs: Any) -> BaselineAgent:
+        """An agent matching a (possibly wrapped or vector) BranchScanEnv's action settings."""
+        config = _env_config(env)
+        discrete = config.action_type == "discrete"
+        return cls(
+            *args,
+            theta_max_deg=config.theta_max_deg,
+            action_angles_deg=config.discrete_angles_deg if discrete else None,
+            **kwargs,
+        )
+
+    def predict(
+        self,
+        observation: dict | np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | bool | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """The action(s) for one observation or a batch (SB3's signature; always deterministic).
+
+        Returns:
+            Actions: (1,) float32 or a 0-d int index for one observation; (N, 1) float32 or (N,)
+            int for a batch. The agent's state (the argument back, or the periodic phases).
+        """
+        vector = vector_part(observation)
+        batched = vector.ndim == 2
+        vectors = vector if batched else vector[None]
+        starts = np.zeros(len(vectors), bool)
+        if episode_start is not None:
+            starts |= np.broadcast_to(np.asarray(episode_start, bool).reshape(-1), starts.shape)
+        starts |= ~np.any(vectors[:, list(OUTCOME_FIELDS)] > 0, axis=1)
+        angles, state = self._angles_deg(vectors, starts, state)
+        actions = self._encode(angles)
+        return (actions if batched else actions[0]), state
+
+    def _angles_deg(
+        self, vectors: np.ndarray, starts: np.ndarray, state: Any
+    ) -> tuple[np.ndarray, Any]:
+        """(N,) target angles (deg) for (N, VECTOR_SIZE) observation vectors."""
+        raise NotImplementedError
+
+    def _encode(self, angles_deg: np.ndarray) -> np.ndarray:
+        if self.action_angles_deg is None:
+            return (angles_deg / self.theta_max_deg).astype(np.float32)[:, None]
+        choices = np.asarray(self.action_angles_deg)
+        index = np.abs(angles_deg[:, None] - choices[None, :]).argmin(axis=1)
+        return index.astype(np.int64)
+
+
+class NoRotationAgent(BaselineAgent):
+    """Never rotate (the paper's baseline; :class:`agents.rotation.NoRotation`)."""
+
+    def _angles_deg(
+        self, vectors: np.ndarray, starts: np.ndarray, state: Any
+    ) -> tuple[np.ndarray, Any]:
+        return np.zeros(len(vectors)), state
+
+
+class PeriodicAgent(BaselineAgent):
+    """The paper's periodic rotation (:class:`agents.rotation.PeriodicRotation`) as an agent.
+
+    Every ``1 / frequency`` vertical FoVs of travel since the last rotation the target steps
+    through +angle, 0, -angle, 0, ... The phase of each batch entry is the agent's state: it is
+    returned by :meth:`predict`, used when passed back, and kept internally otherwise.
+
+    Args:
+        angle_deg: Rotation angle (paper: 22.5 or 45 deg); at most ``theta_max_deg``.
+        frequency: Rotations per vertical FoV of travel (paper: 1.5 or 2.5).
+        theta_max_deg: The env's ``theta_max_deg``.
+        action_angles_deg: The env's ``discrete_angles_deg`` (discrete env), holding 0 and
+            +-angle; None for a continuous env.
+    """
+
+    def __init__(
+        self,
+        angle_deg: float,
+        frequency: float,
+        theta_max_deg: float = THETA_MAX_DEG,
+        action_angles_deg: tuple[float, ...] | None = None,
+    ) -> None:
+        super().__init__(theta_max_deg, action_angles_deg)
+        if not (math.isfinite(angle_deg) and 0 < angle_deg <= self.theta_max_deg):
+            raise ValueError(
+                f"angle_deg must be in (0, theta_max_deg={self.theta_max_deg}], got {angle_deg}"
+            )
+        if not (math.isfinite(frequency) and frequency > 0):
+            raise ValueError(f"frequency must be positive, got {frequency}")
+        self.cycle_deg = np.array([angle_deg, 0.0, -angle_deg, 0.0])
+        if self.action_angles_deg is not None and not set(self.cycle_deg) <= set(
+            self.action_angles_deg
+        ):
+            raise ValueError(
+                f"action_angles_deg {self.action_angles_deg} must hold 0 and +-{angle_deg}"
+            )
+        self.interval_fov = 1.0 / float(frequency)
+        self._phases = np.zeros(0, np.int64)
+
+    def _angles_deg(
+        self, vectors: np.ndarray, starts: np.ndarray, state: Any
+    ) -> tuple[np.ndarray, Any]:
+        if state is not None:
+            phases = np.array(state, np.int64).reshape(-1)
+        elif len(self._phases) == len(vectors):
+            phases = self._phases.copy()
+        else:
+            phases = np.full(len(vectors), _NO_PHASE, np.int64)
+        if len(phases) != len(vectors):
+            raise ValueError(f"state holds {len(phases)} phases for {len(vectors)} observations")
+        phases[starts] = _NO_PHASE
+        due = vectors[:, VectorField.TRAVEL_FOV] >= self.interval_fov
+        phases[due] = (phases[due] + 1) % len(self.cycle_deg)
+        angles = np.where(phases < 0, 0.0, self.cycle_deg[np.maximum(phases, 0)])
+        self._phases = phases
+        return angles, phases.copy()
+
+
+def _env_config(env: Any) -> Any:
+    """The EnvConfig of a BranchScanEnv, possibly wrapped or vectorised."""
+    for candidate in (env, getattr(env, "unwrapped", None)):
+        config = getattr(candidate, "config", None)
+        if config is not None and hasattr(config, "action_type"):
+            return config
+    get_attr = getattr(env, "get_attr", None)  # gymnasium / SB3 vector envs
+    if get_attr is not None:
+        return get_attr("config")[0]
+    raise ValueError(f"{env!r} is not a BranchScanEnv (no EnvConfig found)")

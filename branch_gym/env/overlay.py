@@ -1,0 +1,163 @@
+"""Drawing what the pipeline knows into images: projected 3D branches, fitted 2D curves, masks.
+
+Used for the observation's image channels (single-channel canvases) and for ``render()``'s
+``rgb_array`` frames (the camera image with the mask, the 2D curves and the projected 3D model
+overlaid, for videos). Branches are drawn as polylines as wide as the branch (2 x radius in
+pixels), so a drawn model covers the mask where it explains it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+
+from recon.camera import CameraIntrinsics, project_points
+from recon.curve2d import Curve2D
+from recon.model import BranchModel
+
+# Sub-pixel precision of cv2 drawing: coordinates carry 2 fractional bits.
+_SHIFT = 2
+_SCALE = 1 << _SHIFT
+# Projections far outside the image are clamped (cv2 needs int32 coordinates; lines are clipped).
+_COORD_LIMIT_PX = 1e5
+# Overlay colours (RGB) and blending, our choice for legibility.
+MASK_RGB = (0, 200, 0)
+MASK_ALPHA = 0.35
+MODEL_RGB = (255, 60, 60)
+MODEL_ALPHA = 0.5
+PRIMARY_CURVE_RGB = (255, 230, 0)
+EXPLAINED_CANDIDATE_RGB = (0, 220, 255)
+UNCONFIRMED_CANDIDATE_RGB = (255, 0, 255)
+TEXT_RGB = (255, 255, 255)
+TEXT_OUTLINE_RGB = (0, 0, 0)
+_TEXT_SCALE = 0.4
+_TEXT_LINE_PX = 14
+
+
+def project_branch(
+    branch: BranchModel, T_world_camera: np.ndarray, intrinsics: CameraIntrinsics
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Project a 3D branch into the image.
+
+    Returns:
+        pixels: (N, 2) pixel coordinates (u, v); NaN behind the camera.
+        radii_px: (N,) branch radius in pixels (f * r / depth).
+        valid: (N,) in front of the camera.
+    """
+    pixels, depth = project_points(branch.points, T_world_camera, intrinsics)
+    valid = depth > 0
+    radii_px = np.zeros(len(depth))
+    radii_px[valid] = intrinsics.fx * branch.radii[valid] / depth[valid]
+    return pixels, radii_px, valid
+
+
+def in_view(pixels: np.ndarray, valid: np.ndarray, intrinsics: CameraIntrinsics) -> bool:
+    """Whether any valid projected point lies inside the image."""
+    return bool(np.any(valid & intrinsics.in_image(pixels)))
+
+
+def draw_polyline(
+    canvas: np.ndarray,
+    pixels: np.ndarray,
+    radii_px: np.ndarray,
+    colour: int | tuple[int, ...],
+    valid: np.ndarray | None = None,
+    extra_halfwidth_px: float = 0.0,
+) -> None:
+    """Draw a polyline whose width follows the radius (in place).
+
+    Args:
+        canvas: (H, W) or (H, W, 3) uint8 image.
+        pixels: (N, 2) vertices (u, v).
+        radii_px: (N,) half-widths in pixels; a segment uses the mean of its ends.
+        colour: Grey value or RGB triple.
+        valid: (N,) vertices that may be used (default: the finite ones).
+        extra_halfwidth_px: Added to every half-width (e.g. a tolerance band).
+    """
+    finite = np.all(np.isfinite(pixels), axis=1)
+    ok = finite if valid is None else finite & valid
+    if len(pixels) == 1 and ok[0]:
+        pixels, radii_px, ok = (
+            np.repeat(pixels, 2, axis=0),
+            np.repeat(radii_px, 2),
+            np.repeat(ok, 2),
+        )
+    fixed = np.rint(np.clip(np.nan_to_num(pixels), -_COORD_LIMIT_PX, _COORD_LIMIT_PX) * _SCALE)
+    fixed = fixed.astype(np.int64)
+    for i in range(len(pixels) - 1):
+        if not (ok[i] and ok[i + 1]):
+            continue
+        half = 0.5 * (radii_px[i] + radii_px[i + 1]) + extra_halfwidth_px
+        thickness = max(1, round(2.0 * half))
+        start = (int(fixed[i, 0]), int(fixed[i, 1]))
+        end = (int(fixed[i + 1, 0]), int(fixed[i + 1, 1]))
+        cv2.line(canvas, start, end, colour, thickness, cv2.LINE_8, _SHIFT)
+
+
+def draw_model(
+    canvas: np.ndarray,
+    branches: Sequence[BranchModel],
+    T_world_camera: np.ndarray,
+    intrinsics: CameraIntrinsics,
+    colour: int | tuple[int, ...],
+    extra_halfwidth_px: float = 0.0,
+) -> int:
+    """Draw 3D branches as seen from ``T_world_camera`` (in place).
+
+    Returns:
+        How many of them project into the image.
+    """
+    n_in_view = 0
+    for branch in branches:
+        pixels, radii_px, valid = project_branch(branch, T_world_camera, intrinsics)
+        draw_polyline(canvas, pixels, radii_px, colour, valid, extra_halfwidth_px)
+        n_in_view += in_view(pixels, valid, intrinsics)
+    return n_in_view
+
+
+def draw_curve(canvas: np.ndarray, curve: Curve2D, colour: int | tuple[int, ...]) -> None:
+    """Draw a fitted 2D curve through its samples, as wide as the branch (in place)."""
+    draw_polyline(canvas, curve.samples_px, curve.radii_px, colour)
+
+
+def compose_frame(
+    rgb: np.ndarray,
+    mask: np.ndarray | None,
+    primary_curve: Curve2D | None,
+    candidates: Sequence[tuple[Curve2D, bool]],
+    model_canvas: np.ndarray,
+    text: Sequence[str] = (),
+) -> np.ndarray:
+    """The camera image with the pipeline's state overlaid (``render()``'s rgb_array frame).
+
+    Args:
+        rgb: (H, W, 3) uint8 camera image.
+        mask: (H, W) bool latest mask, or None.
+        primary_curve: The fitted 2D primary, drawn as a centre line.
+        candidates: (2D secondary curve, explained by the 3D model) pairs, drawn as centre lines
+            (cyan explained, magenta unconfirmed).
+        model_canvas: (H, W) uint8 projected 3D model (non-zero where drawn), blended in red.
+        text: Lines written in the top-left corner.
+
+    Returns:
+        (H, W, 3) uint8 frame (a new array).
+    """
+    frame = rgb.astype(np.float32)
+    if mask is not None:
+        frame[mask] = (1 - MASK_ALPHA) * frame[mask] + MASK_ALPHA * np.float32(MASK_RGB)
+    drawn = model_canvas > 0
+    frame[drawn] = (1 - MODEL_ALPHA) * frame[drawn] + MODEL_ALPHA * np.float32(MODEL_RGB)
+    out = np.ascontiguousarray(np.clip(frame, 0, 255).astype(np.uint8))
+    if primary_curve is not None:
+        zeros = np.zeros(len(primary_curve.samples_px))
+        draw_polyline(out, primary_curve.samples_px, zeros, PRIMARY_CURVE_RGB)
+    for curve, explained in candidates:
+        colour = EXPLAINED_CANDIDATE_RGB if explained else UNCONFIRMED_CANDIDATE_RGB
+        draw_polyline(out, curve.samples_px, np.zeros(len(curve.samples_px)), colour)
+    for row, line in enumerate(text):
+        origin = (4, (row + 1) * _TEXT_LINE_PX)
+        for colour, thickness in ((TEXT_OUTLINE_RGB, 3), (TEXT_RGB, 1)):
+            cv2.putText(out, line, origin, cv2.FONT_HERSHEY_SIMPLEX, _TEXT_SCALE, colour, thickness)
+    return out

@@ -1,0 +1,297 @@
+"""The Gymnasium environment: active branch scanning, one modeling iteration per step."""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import replace
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from branch_gym.env.actions import ActionCodec
+from branch_gym.env.config import EnvConfig, env_config_from_kwargs, tree_from_options
+from branch_gym.env.info import final_metrics, step_info, step_timings
+from branch_gym.env.observation import (
+    Drawing,
+    draw_state,
+    make_observation,
+    observation_space,
+    pipeline_state,
+)
+from branch_gym.env.rendering import camera_frame, follow_in_gui, require_display
+from branch_gym.env.reward import REWARD_TERMS, RewardTracker
+from branch_gym.scan import ScanResult, ScanSession
+from recon.metrics import TreeMetrics, evaluate
+from recon.modeler import IterationReport
+
+logger = logging.getLogger(__name__)
+
+# Video frame rate (our choice): a step is ~0.4 s of scan time, so 10 fps plays ~4x real time.
+RENDER_FPS = 10
+# ScanSession stop reason that is a time limit (truncation), not a terminal state.
+TIMEOUT = "timeout"
+# Episode seeds drawn from the env's generator when reset() gets none: [0, 2**31 - 1).
+_SEED_BOUND = 2**31 - 1
+
+
+class BranchScanEnv(gym.Env):
+    """Scan up a tree's primary branch; decide, once per modeling iteration, where to look from.
+
+    A UR5e with an eye-in-hand camera follows the primary branch upward while the reconstruction
+    pipeline (``recon``) builds a 3D model of the primary and its side branches. At every step
+    the agent picks the camera's rotation about the branch (yaw about the world vertical through
+    the followed branch point); the scan rotates there if it changed (rotating is motion at the
+    scan speed: it costs scan time), then follows the branch until the modeler has run its next
+    iteration (every 10 mm of travel): renders, segmentation, tracking, triangulation, modeling
+    (:meth:`branch_gym.scan.ScanSession.step`).
+
+    ## Action space
+
+    ============================  ==============================================================
+    ``BranchScan-v0``             ``Box(-1, 1, (1,), float32)``: target angle / theta_max
+                                  (theta_max 45 deg). Finite values outside [-1, 1] are clipped;
+                                  NaN, infinities and shapes other than (1,) or a scalar raise
+                                  ``ValueError``.
+    ``BranchScanDiscrete-v0``     ``Discrete(5)``: target angle -45, -22.5, 0, 22.5 or 45 deg.
+                                  Non-integer or out-of-range indices raise ``ValueError``.
+    ============================  ==============================================================
+
+    ## Observation space
+
+    ``Dict(image=Box(0, 255, (3, 60, 80), uint8), vector=Box(low, high, (11,), float32))``; with
+    ``flatten=True`` (or ``BranchScanFlat-v0``) one ``Box`` of 11 + 14400 float32: the vector,
+    then the image / 255 (channel-first order). Only what the pipeline knows, no ground truth.
+    Names: :class:`branch_gym.env.layout.ImageChannel`, :class:`~branch_gym.env.layout.VectorField`.
+
+    =====  =============================  ============================================  =======
+    image  channel                        content (camera image / 4, area-averaged)     range
+    =====  =============================  ============================================  =======
+    0      ``MASK``                       latest segmentation mask (as cleaned by 2D)   0..255
+    1      ``MODEL``                      3D model projected into the current view,     0..255
+                                          primary + secondaries as wide as their radii
+    2      ``UNCONFIRMED``                2D side-branch candidates of the latest       0..255
+                                          mask that no projected 3D secondary explains
+    =====  =============================  ============================================  =======
+
+    ======  =============================  ============================================  =======
+    vector  field                          meaning                                       range
+    ======  =============================  ============================================  =======
+    0       ``ANGLE``                      current rotation / theta_max                  [-1, 1]
+    1       ``TRAVEL_FOV``                 vertical travel since the last rotation, in   [0, 10]
+                                           vertical FoVs at z_target (0.115 m)
+    2       ``PROGRESS``                   fraction of the scan height range covered     [0, 1]
+    3-5     ``OUTCOME_*``                  latest iteration consistent / inconsistent /  {0, 1}
+                                           restart, one-hot (all 0 before the first)
+    6       ``MODEL_SECONDARIES``          secondaries in the 3D model / 10              [0, 1]
+    7       ``MODEL_SECONDARIES_IN_VIEW``  ... of which project into the image / 10      [0, 1]
+    8       ``CANDIDATES_2D``              2D side-branch candidates in the mask / 10    [0, 1]
+    9       ``UNCONFIRMED_CANDIDATES``     ... not explained by the 3D model / 10        [0, 1]
+    10      ``PREVIOUS_ACTION``            previous target angle / theta_max (0 after    [-1, 1]
+                                           reset)
+    ======  =============================  ============================================  =======
+
+    ## Rewards (ground truth, simulation only; :class:`branch_gym.env.reward.RewardConfig`)
+
+    =================  ==========  ==============================================================
+    term               weight      per
+    =================  ==========  ==============================================================
+    ``matched``        +1.0        ground-truth secondary newly matched (-1.0 if a match is lost)
+    ``spurious``       -0.5        spurious model branch added (+0.5 when one is pruned)
+    ``duplicates``     -0.5        duplicate of a matched branch added (+0.5 when merged)
+    ``time``           -0.01       second of scan time (following and rotating)
+    ``failure``        -1.0        once, when the scan fails (terminated with a failure reason)
+    =================  ==========  ==============================================================
+
+    Scoring is :func:`recon.metrics.evaluate` up to the height scanned so far, after every step;
+    the return telescopes to the final score. ``info["reward_terms"]`` splits each reward.
+
+    ## Episode end
+
+    - ``terminated``: the camera reached ``end_height_m`` (0.75 m) or the scan failed
+      (``singularity``, ``joint_limit``, ``joint_speed``, ``collision``, ``lost_branch``:
+      ``info["failure"]``).
+    - ``truncated``: the simulated scan time limit (``ScanConfig.max_scan_time_s``, 100 s;
+      ``info["stop_reason"] == "timeout"``), or the step limit of the registered ids
+      (``max_episode_steps=200``, gymnasium's ``TimeLimit``; ``gymnasium.make(...,
+      max_episode_steps=N)`` changes it). Stepping a terminated or scan-time-truncated episode
+      raises ``RuntimeError``: call ``reset()``.
+
+    ## Info
+
+    Every ``reset`` / ``step``: ``seed`` (the tree's), ``metrics`` (flat
+    :meth:`recon.metrics.TreeMetrics.to_dict` so far, NaN as None), ``reward_terms``,
+    ``failure`` ("" if none), ``stop_reason`` ("" while running), ``scan_time_s``, ``rotations``,
+    ``angle_deg``, ``camera_height_m``, ``progress``, ``outcome`` (latest iteration, "" before the
+    first), ``iterations`` (this step), ``n_iterations``, ``rotated``, and with ``info_timings``
+    ``timings_ms`` (modeler stages summed over the step's iterations, ``scan_step_ms``,
+    ``metrics_ms``, ``observation_ms``, ``env_step_ms``). When the scan ends (terminated, or
+    truncated by scan time): ``final_metrics``, the :meth:`branch_gym.scan.ScanResult.to_row` of
+    the scan. After a ``TimeLimit`` truncation ``metrics`` is the final score.
+
+    ## Arguments
+
+    ``gymnasium.make(id, render_mode=None, **kwargs)``; the fields of
+    :class:`~branch_gym.env.config.EnvConfig` and shortcuts into its ``scan``.
+
+    =======================  =====================================================================
+    ``render_mode``          None, "rgb_array" (camera image + mask, 2D curves, projected model),
+                             "human" (pybullet GUI; needs a display, else ``RuntimeError``)
+    ``tracker``              "lk" (default) or "oracle" (exact tracks from rendered depth, faster)
+    ``segmenter``            "gt" (default) or "noisy:mild" | "noisy:moderate" | "noisy:severe"
+    ``tree``                 "paper" (default), "cluttered", "hard" or a ``TreeConfig``
+    ``end_height_m``         scan end height (0.75 m); ``speed_mps``: scan speed (0.025 m/s)
+    ``scan``                 a full :class:`branch_gym.scan.ScanConfig` (the shortcuts above
+                             modify it)
+    ``action_type``          "continuous" or "discrete" (set by the id)
+    ``theta_max_deg``        continuous action bound and angle normaliser (45)
+    ``discrete_angles_deg``  discrete target angles ((-45, -22.5, 0, 22.5, 45))
+    ``flatten``              flat float32 observation (False)
+    ``info_timings``         per-stage wall-clock timings in ``info`` (False: keeps infos
+                             deterministic, as gymnasium's check_env requires)
+    ``reward``               :class:`~branch_gym.env.reward.RewardConfig` or a dict of weights
+    ``observation``          :class:`~branch_gym.env.config.ObservationConfig` or a dict
+    =======================  =====================================================================
+
+    Unknown keywords and bad values raise ``ValueError`` naming the key. ``reset(seed=s)`` scans
+    the tree of seed ``s`` (the same tree and scan as ``run_scan(s, ...)``); ``reset()`` draws the
+    seed from the env's generator; ``options={"tree": TreeGT}`` scans a given tree.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": RENDER_FPS}  # noqa: RUF012
+
+    def __init__(self, render_mode: str | None = None, **kwargs: Any) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be None or one of {self.metadata['render_modes']}, "
+                f"got {render_mode!r}"
+            )
+        config = env_config_from_kwargs(kwargs)
+        if render_mode == "human":
+            require_display()
+            world = config.scan.world
+            gui_world = replace(world, bullet=replace(world.bullet, gui=True))
+            config = replace(config, scan=replace(config.scan, world=gui_world))
+        self.config: EnvConfig = config
+        self.render_mode = render_mode
+        self._actions = ActionCodec(
+            config.action_type, config.theta_max_deg, config.discrete_angles_deg
+        )
+        self.action_space = self._actions.space
+        self.observation_space = observation_space(config.observation, config.flatten)
+        self._session = ScanSession(config.scan)
+        self._reward = RewardTracker(config.reward)
+        self._seed: int | None = None
+        self._over = True
+        self._last_report: IterationReport | None = None
+        self._drawing: Drawing | None = None
+        self._previous_action = 0.0
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        super().reset(seed=seed)
+        tree = tree_from_options(options)
+        self._seed = int(seed) if seed is not None else int(self.np_random.integers(_SEED_BOUND))
+        start = time.perf_counter()
+        self._session.reset(self._seed, tree)
+        self._reward.reset()
+        self._last_report, self._previous_action, self._over = None, 0.0, False
+        reset_ms = (time.perf_counter() - start) * 1e3
+        metrics, metrics_ms = self._score()
+        obs, obs_ms = self._observe()
+        env_ms = {"reset_ms": reset_ms, "metrics_ms": metrics_ms, "observation_ms": obs_ms}
+        terms = dict.fromkeys(REWARD_TERMS, 0.0)
+        return obs, self._info(metrics, terms, [], False, env_ms)
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        if self._seed is None:
+            raise RuntimeError("BranchScanEnv.step() called before reset(): call reset() first")
+        if self._over:
+            raise RuntimeError(
+                "BranchScanEnv.step() called after the episode ended (stop reason "
+                f"{self._session.stop_reason!r}): call reset() to start a new scan"
+            )
+        angle_deg = self._actions.to_angle_deg(action)
+        start = time.perf_counter()
+        result = self._session.step(angle_deg)
+        scan_ms = (time.perf_counter() - start) * 1e3
+        self._previous_action = self._actions.normalised(angle_deg)
+        if result.reports:
+            self._last_report = result.reports[-1]
+        session = self._session
+        truncated = session.done and session.stop_reason == TIMEOUT
+        terminated = session.done and not truncated
+        metrics, metrics_ms = self._score()
+        failed = terminated and session.failure is not None
+        reward, terms = self._reward.step(metrics, session.scan_time_s, failed)
+        obs, obs_ms = self._observe()
+        env_ms = {"scan_step_ms": scan_ms, "metrics_ms": metrics_ms, "observation_ms": obs_ms}
+        env_ms["env_step_ms"] = (time.perf_counter() - start) * 1e3
+        info = self._info(metrics, terms, result.reports, result.rotated, env_ms)
+        if session.done:
+            self._over = True
+            logger.debug(
+                "episode over: %s after %d iterations", session.stop_reason, len(session.reports)
+            )
+            info["final_metrics"] = final_metrics(self.result(), self.config.info_timings)
+        if self.render_mode == "human":
+            self.render()
+        return obs, reward, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        """rgb_array: (240, 320, 3) uint8 camera image with the pipeline's state overlaid."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without a render_mode: pass render_mode to make()")
+            return None
+        if self._seed is None or self._drawing is None:
+            raise RuntimeError("BranchScanEnv.render() called before reset()")
+        if self.render_mode == "human":
+            follow_in_gui(self._session.world)
+            return None
+        return camera_frame(self._session, self._last_report, self._drawing)
+
+    def close(self) -> None:
+        self._session.close()
+
+    # ------------------------------------------------------------------ extras
+    @property
+    def session(self) -> ScanSession:
+        """The scan behind the env (ground truth included: for evaluation, not for policies)."""
+        return self._session
+
+    def result(self) -> ScanResult:
+        """The current scan scored against the ground truth (``policy="env"``)."""
+        return self._session.result("env")
+
+    # ------------------------------------------------------------------ internals
+    def _score(self) -> tuple[TreeMetrics, float]:
+        start = time.perf_counter()
+        session = self._session
+        metrics = evaluate(session.model, session.tree, scanned_top_z_m=session.camera_height_m)
+        return metrics, (time.perf_counter() - start) * 1e3
+
+    def _observe(self) -> tuple[Any, float]:
+        start = time.perf_counter()
+        state = pipeline_state(
+            self._session, self._last_report, self._actions.normalised, self._previous_action
+        )
+        self._drawing = draw_state(state, self.config.observation)
+        obs = make_observation(state, self._drawing, self.config.observation, self.config.flatten)
+        return obs, (time.perf_counter() - start) * 1e3
+
+    def _info(
+        self,
+        metrics: TreeMetrics,
+        terms: dict[str, float],
+        reports: list[IterationReport],
+        rotated: bool,
+        env_ms: dict[str, float],
+    ) -> dict[str, Any]:
+        info = step_info(self._session, self._seed, metrics, self._last_report, reports, rotated)
+        info["reward_terms"] = dict(terms)
+        if self.config.info_timings:
+            info["timings_ms"] = step_timings(reports, env_ms)
+        return info
