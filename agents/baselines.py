@@ -179,3 +179,19 @@ def _env_config(env: Any) -> Any:
     if get_attr is not None:
         return get_attr("config")[0]
     raise ValueError(f"{env!r} is not a BranchScanEnv (no EnvConfig found)")
+
+
+def make_agent(spec: str, env: Any) -> BaselineAgent:
+    """The agent of a rotation policy spec ("none", "periodic:ANGLE:FREQ") for ``env``.
+
+    Raises:
+        ValueError: an unknown or malformed spec (see :func:`agents.rotation.make_policy`).
+    """
+    from agents.rotation import NoRotation, PeriodicRotation, make_policy
+
+    policy = make_policy(spec)
+    if isinstance(policy, NoRotation):
+        return NoRotationAgent.for_env(env)
+    if isinstance(policy, PeriodicRotation):
+        return PeriodicAgent.for_env(env, policy.angle_deg, policy.frequency)
+    raise ValueError(f"no env agent for policy spec {spec!r}")

@@ -1,6 +1,8 @@
 """Run every policy on the same trees, in a process pool, resuming from saved trials.
 
-Each (policy, tree seed) pair is one trial: ``branch_gym.scan.run_scan(seed, policy, scan)``.
+Each (policy, tree seed) pair is one trial: the policy's agent plays one episode of the Gymnasium
+environment (``branch_gym.evaluation.env_trial.run_scan_in_env``; the same numbers as
+``branch_gym.scan.run_scan``).
 A finished trial is saved at once (:mod:`branch_gym.evaluation.trials`); a later run with the same
 output folder loads the trials already there instead of re-running them, so an interrupted
 evaluation loses at most the trials that were running. Trials are only comparable under one scan
@@ -26,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from agents.rotation import make_policy
+from branch_gym.evaluation.env_trial import run_scan_in_env
 from branch_gym.evaluation.trials import (
     TRIALS_DIR,
     TrialRecord,
@@ -37,7 +40,7 @@ from branch_gym.evaluation.trials import (
     trial_path,
     write_json_atomic,
 )
-from branch_gym.scan import ScanConfig, run_scan
+from branch_gym.scan import ScanConfig
 
 logger = logging.getLogger(__name__)
 
@@ -277,7 +280,7 @@ def _run_task(task: _Task) -> TrialKey:
     """Run one scan and save it (in a worker process, or in this one)."""
     start = time.perf_counter()
     try:
-        result = run_scan(task.seed, task.policy, task.scan)
+        result = run_scan_in_env(task.seed, task.policy, task.scan)
     except Exception as exc:
         raise RuntimeError(f"trial {task.policy!r} seed {task.seed} raised: {exc!r}") from exc
     save_trial(

@@ -1,0 +1,36 @@
+"""One evaluation trial played through the Gymnasium environment.
+
+``eval.py`` scores policies the way a learning agent meets the task: an agent's
+``predict(obs, state, episode_start)`` acts in :class:`branch_gym.env.BranchScanEnv` until the
+episode ends. The env wraps the same :class:`branch_gym.scan.ScanSession` as
+:func:`branch_gym.scan.run_scan`, so for the same seed and policy both give the same numbers
+(tests/test_env_slow.py checks it).
+"""
+
+from __future__ import annotations
+
+from branch_gym.env import BranchScanEnv
+from branch_gym.scan import ScanConfig, ScanResult
+
+_ENVS: dict[ScanConfig, BranchScanEnv] = {}
+
+
+def run_scan_in_env(seed: int, policy_spec: str, config: ScanConfig) -> ScanResult:
+    """Scan the tree of ``seed`` with the agent of ``policy_spec`` acting in the env.
+
+    The env is built directly (no step limit: a scan ends at its end height, on a failure or
+    at the scan's own time limit) and reused across trials of one configuration.
+    """
+    from agents.baselines import make_agent
+
+    env = _ENVS.get(config)
+    if env is None:
+        env = _ENVS[config] = BranchScanEnv(scan=config)
+    agent = make_agent(policy_spec, env)
+    observation, _ = env.reset(seed=seed)
+    episode_start, done = True, False
+    while not done:
+        action, _ = agent.predict(observation, episode_start=episode_start)
+        observation, _, terminated, truncated, _ = env.step(action)
+        episode_start, done = False, terminated or truncated
+    return env.session.result(policy_spec)
