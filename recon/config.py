@@ -54,6 +54,10 @@ class ModelerConfig:
             pointing away from the camera came out up to 4x too long). 0 disables it, the default:
             at 30 deg it removed 2 of 5 spurious branches with periodic:45:1.5 but cost 3 of 29
             detections without rotation on 12 trees.
+        secondary_max_foreshortening: A lifted secondary is cut before the first step between
+            samples that is longer in 3D than this times its image length at its depth, i.e. a
+            branch receding within asin(1/3) ~ 19 deg of the viewing ray (our choice, measured:
+            lifted tips of receding branches otherwise stretched branches up to 4x).
         secondary_trust_min: A secondary whose trust falls below this is deleted (the authors'
             code kept a trust score, reference.md; threshold our choice).
         secondary_confirmations: Observations a secondary needs to be reported (our choice:
@@ -85,6 +89,7 @@ class ModelerConfig:
     secondary_merge_distance_m: float = 0.01
     secondary_merge_angle_deg: float = 45.0
     secondary_min_view_angle_deg: float = 0.0
+    secondary_max_foreshortening: float = 3.0
     secondary_trust_min: int = -2
     secondary_confirmations: int = 1
     secondary_max_observations: int = 400

@@ -282,11 +282,21 @@ class Modeler:
             frames, np.concatenate(queries), np.concatenate(radii), self.tracker, self.config
         )
         owner_all = np.concatenate(owner)[lifted.index]
+        pixels_all = np.concatenate(queries)[lifted.index]
+        focal_px = frames[-1].intrinsics.fx
         detections = []
         for k in range(len(curves.secondaries)):
-            sel = owner_all == k
-            if sel.sum() >= self.config.secondary_min_points:
-                detections.append(SecondaryDetection(lifted.centers[sel], lifted.radii_m[sel]))
+            sel = np.flatnonzero(owner_all == k)
+            n = _plausible_prefix(
+                lifted.centers[sel],
+                pixels_all[sel],
+                lifted.depth_m[sel],
+                focal_px,
+                self.config.secondary_max_foreshortening,
+            )
+            if n >= self.config.secondary_min_points:
+                keep = sel[:n]
+                detections.append(SecondaryDetection(lifted.centers[keep], lifted.radii_m[keep]))
         return detections
 
     def _inconsistent(
@@ -299,3 +309,26 @@ class Modeler:
         report.n_secondaries = len(self._secondaries.models())
         report.timings_ms["total_ms"] = (time.perf_counter() - t_start) * 1e3
         return report
+
+
+def _plausible_prefix(
+    centers: np.ndarray,
+    pixels: np.ndarray,
+    depth_m: np.ndarray,
+    focal_px: float,
+    max_foreshortening: float,
+) -> int:
+    """How many leading points of a lifted branch (ordered from the junction) are plausible.
+
+    A 3D step between consecutive samples cannot be much longer than its 2D step seen at that
+    depth, unless the branch recedes almost along the viewing ray, where depth is ill-conditioned:
+    the branch is cut before the first step longer than ``max_foreshortening`` times its image
+    length (a receding tip lifted onto a far depth would otherwise stretch the branch).
+    """
+    if len(centers) < 2:
+        return len(centers)
+    step_3d = np.linalg.norm(np.diff(centers, axis=0), axis=1)
+    step_2d = np.linalg.norm(np.diff(pixels, axis=0), axis=1)
+    depth = 0.5 * (depth_m[:-1] + depth_m[1:])
+    bad = np.flatnonzero(step_3d > max_foreshortening * step_2d * depth / focal_px)
+    return int(bad[0]) + 1 if len(bad) else len(centers)
