@@ -145,3 +145,23 @@ def test_bad_frames_raise_clear_errors() -> None:
         ModelerConfig(tracking_frames=1)
     with pytest.raises(ValueError, match="iteration_spacing_m"):
         ModelerConfig(iteration_spacing_m=-1.0)
+
+
+def test_lifted_branch_is_cut_at_an_implausible_depth_jump() -> None:
+    from recon.modeler import _plausible_prefix
+
+    focal = INTRINSICS.fx
+    pixels = np.array([[170.0, 120.0], [200.0, 120.0], [230.0, 120.0], [260.0, 120.0]])
+    depth = np.full(4, 0.2)
+    # Parallel to the image plane: each 30 px step is 30 * 0.2 / f metres long in 3D.
+    step = 30 * 0.2 / focal
+    centers = np.array([[0.0, 0.0, 0.5], [step, 0, 0.5], [2 * step, 0, 0.5], [3 * step, 0, 0.5]])
+    assert _plausible_prefix(centers, pixels, depth, focal, 3.0) == 4
+    # The tip jumps 10 cm deeper: cut before it.
+    far = centers.copy()
+    far[3, 1] += 0.10
+    assert _plausible_prefix(far, pixels, depth, focal, 3.0) == 3
+    # A receding branch (2.5x longer than its image) is kept.
+    receding = centers.copy()
+    receding[:, 1] = np.arange(4) * step * 2.3
+    assert _plausible_prefix(receding, pixels, depth, focal, 3.0) == 4
