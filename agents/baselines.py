@@ -181,14 +181,28 @@ def _env_config(env: Any) -> Any:
     raise ValueError(f"{env!r} is not a BranchScanEnv (no EnvConfig found)")
 
 
-def make_agent(spec: str, env: Any) -> BaselineAgent:
-    """The agent of a rotation policy spec ("none", "periodic:ANGLE:FREQ") for ``env``.
+def make_agent(spec: str, env: Any) -> Any:
+    """The agent of a policy spec for ``env``.
+
+    Specs: the rotation policies ("none", "periodic:ANGLE:FREQ"), "disagreement[:ANGLE]"
+    (:mod:`agents.disagreement`) and "ppo:PATH" (a trained model,
+    :func:`branch_gym.training.policy.load_policy`).
 
     Raises:
-        ValueError: an unknown or malformed spec (see :func:`agents.rotation.make_policy`).
+        ValueError: an unknown or malformed spec (see :func:`agents.rotation.make_policy`), or a
+            model that does not fit ``env``.
+        FileNotFoundError: a "ppo:" model file that does not exist.
     """
     from agents.rotation import NoRotation, PeriodicRotation, make_policy
 
+    if spec.startswith("ppo:"):
+        from branch_gym.training.policy import check_ppo_spec, load_policy
+
+        return load_policy(check_ppo_spec(spec), env)
+    if spec.split(":")[0] == "disagreement":
+        from agents.disagreement import DisagreementAgent, parse_disagreement_spec
+
+        return DisagreementAgent.for_env(env, parse_disagreement_spec(spec))
     policy = make_policy(spec)
     if isinstance(policy, NoRotation):
         return NoRotationAgent.for_env(env)

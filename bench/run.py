@@ -17,7 +17,13 @@ from pathlib import Path
 # Benchmarks measure one core, as the issues' targets do.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-BENCHMARKS = ["bench.bench_recon", "bench.bench_sim", "bench.bench_scan", "bench.bench_env"]
+BENCHMARKS = [
+    "bench.bench_recon",
+    "bench.bench_sim",
+    "bench.bench_scan",
+    "bench.bench_env",
+    "bench.bench_train",
+]
 DEFAULT_OUT = Path(__file__).with_name("results.json")
 
 

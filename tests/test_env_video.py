@@ -15,7 +15,9 @@ def test_record_video_writes_an_episode(tmp_path: Path) -> None:
     env = gymnasium.make(
         "BranchScan-v0", render_mode="rgb_array", tracker="oracle", end_height_m=0.32
     )
-    env = RecordVideo(env, str(tmp_path / "videos"), episode_trigger=lambda _: True, disable_logger=True)
+    env = RecordVideo(
+        env, str(tmp_path / "videos"), episode_trigger=lambda _: True, disable_logger=True
+    )
     env.reset(seed=0)
     frame_shape = env.render().shape
     done = False

@@ -63,7 +63,10 @@ PAPER_TABLE_I: dict[tuple[float, float], dict[str, object]] = {
 
 def paper_column(policy: str) -> dict[str, object] | None:
     """The paper's Table I column for a policy spec, or None when the paper has no such column."""
-    rotation = make_policy(policy)
+    try:
+        rotation = make_policy(policy)
+    except ValueError:  # learned or heuristic policies: no paper column
+        return None
     if isinstance(rotation, NoRotation):
         return PAPER_TABLE_I[(0.0, 0.0)]
     if isinstance(rotation, PeriodicRotation):

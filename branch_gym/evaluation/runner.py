@@ -107,6 +107,23 @@ class EvalConfig:
         }
 
 
+def _check_spec(policy: str) -> None:
+    """Raise a ValueError naming the valid forms unless ``policy`` is a known spec."""
+    if policy.startswith("ppo:"):
+        from branch_gym.training.policy import check_ppo_spec
+
+        try:
+            check_ppo_spec(policy)  # the model file must exist; it is loaded by the trial
+        except FileNotFoundError as exc:
+            raise ValueError(str(exc)) from exc
+    elif policy.split(":")[0] == "disagreement":
+        from agents.disagreement import parse_disagreement_spec
+
+        parse_disagreement_spec(policy)
+    else:
+        make_policy(policy)
+
+
 def validate_policies(policies: Sequence[str]) -> None:
     """Check every spec before any work.
 
@@ -118,7 +135,7 @@ def validate_policies(policies: Sequence[str]) -> None:
         raise ValueError("at least one policy is needed")
     slugs: dict[str, str] = {}
     for policy in policies:
-        make_policy(policy)  # raises ValueError naming the valid forms
+        _check_spec(policy)
         slug = policy_slug(policy)
         if slug in slugs:
             raise ValueError(

@@ -1,0 +1,61 @@
+"""PPO training throughput: ``train_steps_per_s`` (real LK tracking), ``..._oracle``.
+
+Environment steps per second of wall time while stable-baselines3 PPO trains on
+``BranchScan-v0`` with 2 envs in a ``SubprocVecEnv`` (``MultiInputPolicy``, CPU torch with one
+thread), at the paper's scan settings (0.275 -> 0.75 m at 2.5 cm/s, paper trees, ground-truth
+segmentation) and the default :class:`~branch_gym.training.config.PPOConfig` except a short
+rollout (``BENCH_N_STEPS`` per env) so that a PPO update is included within the time budget:
+the per-step cost of the update (n_epochs passes over each sample) does not depend on n_steps.
+Rollouts (env steps of a fresh policy, whose exploration rotates at almost every step), the
+policy's forward passes and the update all count; process start-up and env creation do not.
+"""
+
+from __future__ import annotations
+
+import time
+
+from branch_gym.training.config import PPOConfig, TrainConfig
+from branch_gym.training.envs import make_train_env, policy_class
+
+N_ENVS = 2
+# Our choice: one rollout of 12 steps per env and one update per tracker keep the whole bench
+# under ~1 min: a fresh policy's exploration rotates at almost every step (~1 s of wall time).
+BENCH_N_STEPS = 12
+ROLLOUTS = 1
+SEED = 0
+
+
+def _train_steps_per_s(tracker: str) -> float:
+    """Env steps per second of ``PPO.learn`` with 2 envs and the given tracker."""
+    import torch
+    from stable_baselines3 import PPO
+
+    torch.set_num_threads(1)
+    ppo = PPOConfig(n_steps=BENCH_N_STEPS, batch_size=BENCH_N_STEPS * N_ENVS)
+    steps = BENCH_N_STEPS * N_ENVS * ROLLOUTS
+    config = TrainConfig(
+        timesteps=steps, n_envs=N_ENVS, seed=SEED, tracker=tracker, eval_every=0, ppo=ppo
+    )
+    venv = make_train_env(config)
+    try:
+        model = PPO(
+            policy_class(venv.observation_space),
+            venv,
+            seed=SEED,
+            device="cpu",
+            verbose=0,
+            **ppo.sb3_kwargs(),
+        )
+        start = time.perf_counter()
+        model.learn(total_timesteps=steps)
+        elapsed = time.perf_counter() - start
+    finally:
+        venv.close()
+    return model.num_timesteps / elapsed
+
+
+def run() -> dict[str, float]:
+    return {
+        "train_steps_per_s": _train_steps_per_s("lk"),
+        "train_steps_per_s_oracle": _train_steps_per_s("oracle"),
+    }

@@ -1,0 +1,16 @@
+"""Training learned rotation policies with stable-baselines3 PPO (``train.py`` at the root).
+
+===================  ===========================================================================
+``config.py``        ``TrainConfig`` (env, seeds, schedule) and ``PPOConfig``, frozen, validated
+``seeds.py``         disjoint tree seed ranges: training, held-out evaluation, ``eval.py`` trees
+``envs.py``          training ``VecEnv`` (Subproc / Dummy, Monitor, VecNormalize), evaluation env
+``callbacks.py``     per-episode scan metrics to TensorBoard, tqdm progress bar
+``checkpoints.py``   atomic checkpoints (model, VecNormalize, ``checkpoint.json``) for resuming
+``evaluation.py``    held-out evaluation during training, best model
+``policy.py``        ``load_policy(path)``: a trained model as an agent (``ppo:PATH`` specs)
+``paths.py``         the files of a run folder
+``train.py``         ``train(config, out, resume)``
+===================  ===========================================================================
+
+Importing this package is light; the modules load stable-baselines3 and torch.
+"""

@@ -1,0 +1,112 @@
+"""Training callbacks: the scan metrics of every finished episode, and a progress bar.
+
+:class:`ScanMetricsCallback` reads ``info["final_metrics"]`` (the scan's final row, scored
+against the ground truth) when an episode ends and logs ``SCAN_METRICS``:
+
+- ``scan/<name>``: the mean over the episodes finished since the last log write (SB3's
+  ``logger.record_mean``; next to ``rollout/ep_rew_mean``), plus ``scan/episodes``;
+- ``episode/<name>``: one TensorBoard point per episode, at the step it ended.
+
+Undefined values (``missed_pct`` of a tree without secondaries is None) are skipped. Episodes
+cut by the env's step limit have no final row and are not counted.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import TensorBoardOutputFormat
+
+FINAL_METRICS_KEY = "final_metrics"
+SCAN_PREFIX = "scan/"
+EPISODE_PREFIX = "episode/"
+FAILED = "failed"  # 1 when the scan failed (singularity, joint limit, lost branch, ...)
+# Columns of ScanResult.to_row() logged per episode, in this order.
+SCAN_METRICS = (
+    "missed_pct",
+    "spurious_pct",
+    "duplicate_pct",
+    "n_matched",
+    "rotations",
+    "scan_time_s",
+    FAILED,
+)
+
+
+def scan_metrics(final: dict[str, Any]) -> dict[str, float]:
+    """The logged metrics of one finished scan (undefined ones left out).
+
+    Args:
+        final: ``info["final_metrics"]`` of the episode's last step.
+    """
+    values = dict(final)
+    values[FAILED] = 1.0 if final.get("failure") else 0.0
+    return {
+        name: float(values[name])
+        for name in SCAN_METRICS
+        if isinstance(values.get(name), (int, float))
+    }
+
+
+class ScanMetricsCallback(BaseCallback):
+    """Log the scan metrics of every episode that ends (see the module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.episodes = 0  # episodes logged by this callback
+
+    def _on_step(self) -> bool:
+        for info in self.locals.get("infos", ()):
+            final = info.get(FINAL_METRICS_KEY)
+            if final is None:
+                continue
+            self.episodes += 1
+            metrics = scan_metrics(final)
+            for name, value in metrics.items():
+                self.logger.record_mean(SCAN_PREFIX + name, value)
+            self.logger.record(SCAN_PREFIX + "episodes", self.episodes)
+            for writer in self._tensorboard_writers():
+                for name, value in metrics.items():
+                    writer.add_scalar(EPISODE_PREFIX + name, value, self.num_timesteps)
+        return True
+
+    def _tensorboard_writers(self) -> list[Any]:
+        return [
+            fmt.writer
+            for fmt in self.logger.output_formats
+            if isinstance(fmt, TensorBoardOutputFormat)
+        ]
+
+
+class TqdmCallback(BaseCallback):
+    """A tqdm progress bar over environment steps, from the steps done to ``total``.
+
+    Args:
+        total: The run's step target (``TrainConfig.timesteps``).
+    """
+
+    def __init__(self, total: int) -> None:
+        super().__init__()
+        self.total = total
+        self._bar: Any = None
+
+    def _on_training_start(self) -> None:
+        from tqdm import tqdm
+
+        self._bar = tqdm(
+            total=self.total,
+            initial=self.num_timesteps,
+            unit="step",
+            desc="training",
+            smoothing=0.1,
+        )
+
+    def _on_step(self) -> bool:
+        self._bar.update(self.training_env.num_envs)
+        return True
+
+    def _on_training_end(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None

@@ -1,0 +1,228 @@
+"""The configuration of a training run: frozen dataclasses, validated, saved as ``config.json``.
+
+:class:`TrainConfig` holds everything that determines a run (environment, seeds, schedule,
+PPO hyper-parameters); where the run is written (``--out``) and whether it resumes are arguments
+of :func:`branch_gym.training.train.train`, not configuration.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import asdict, dataclass, field, fields
+from typing import Any
+
+from branch_gym import ENV_ID, ENV_IDS
+from branch_gym.training.seeds import MAX_EVAL_TREES, MAX_RUN_SEEDS
+
+# Fields a resumed run may change: the step target and the checkpoint and evaluation periods.
+RESUMABLE_CHANGES = ("timesteps", "checkpoint_every", "eval_every")
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """stable-baselines3 PPO hyper-parameters (SB3's defaults unless noted).
+
+    Attributes:
+        n_steps: Steps per environment per rollout (our choice: SB3's 2048 would be ~40 full
+            scans of ~50 steps per update; 256 updates every ~5 scans per environment).
+        batch_size: Minibatch size (SB3 default 64).
+        n_epochs: Passes over each rollout (SB3 default 10).
+        learning_rate: Adam step size (SB3 default 3e-4).
+        gamma: Discount (SB3 default 0.99: a horizon of ~100 steps, about two scans).
+        gae_lambda: GAE lambda (SB3 default 0.95).
+        clip_range: PPO clip (SB3 default 0.2).
+        ent_coef: Entropy bonus (SB3 default 0.0).
+        vf_coef: Value loss weight (SB3 default 0.5).
+        max_grad_norm: Gradient clipping (SB3 default 0.5).
+        log_std_init: Initial log std of the continuous action (SB3 default 0.0: std 1, i.e.
+            +-45 deg, clipped, so nearly every exploration step is a long rotation costing ~1 s
+            of wall time; -1.0 (std 0.37) explores ~+-17 deg and trains faster). Unused by
+            the discrete env.
+    """
+
+    n_steps: int = 256
+    batch_size: int = 64
+    n_epochs: int = 10
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    log_std_init: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("n_steps", "batch_size", "n_epochs"):
+            _require_int(f"PPOConfig.{name}", getattr(self, name), minimum=1)
+        for name in ("learning_rate", "clip_range", "max_grad_norm"):
+            _require_number(f"PPOConfig.{name}", getattr(self, name), positive=True)
+        for name in ("ent_coef", "vf_coef"):
+            _require_number(f"PPOConfig.{name}", getattr(self, name), positive=False)
+        for name in ("gamma", "gae_lambda"):
+            value = getattr(self, name)
+            if not (_is_number(value) and 0.0 < value <= 1.0):
+                raise ValueError(f"PPOConfig.{name} must be in (0, 1], got {value!r}")
+        if not (_is_number(self.log_std_init) and math.isfinite(self.log_std_init)):
+            raise ValueError(f"PPOConfig.log_std_init must be finite, got {self.log_std_init!r}")
+
+    def sb3_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``stable_baselines3.PPO``."""
+        kwargs = asdict(self)
+        kwargs["policy_kwargs"] = {"log_std_init": kwargs.pop("log_std_init")}
+        return kwargs
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One PPO training run on a ``BranchScan`` environment.
+
+    Attributes:
+        env_id: A registered id (``branch_gym.ENV_IDS``); Dict observations get SB3's
+            ``MultiInputPolicy``, the flat one ``MlpPolicy``.
+        timesteps: Total environment steps to reach (a resumed run counts the steps done
+            before; PPO stops at the first whole rollout past it).
+        n_envs: Environments stepped in parallel (``SubprocVecEnv`` when > 1).
+        seed: The run's seed: tree seeds of the training episodes (``seeds.py``), PPO's
+            network initialisation and action sampling. In ``[0, MAX_RUN_SEEDS)``.
+        tracker: "lk" or "oracle" (exact tracks: faster training).
+        segmenter: "gt" or "noisy:mild" | "noisy:moderate" | "noisy:severe".
+        tree: Tree distribution preset: "paper", "cluttered" or "hard".
+        end_height_m: Scan end height (m); None keeps the scan default (0.75 m, paper V-A).
+        speed_mps: Scan speed (m/s); None keeps the scan default (0.025 m/s).
+        checkpoint_every: Save a checkpoint every this many environment steps (our choice:
+            10k steps, ~15 min of training at ~10 steps/s: a killed run loses at most that).
+        eval_every: Evaluate on the held-out trees every this many steps; 0 never (our
+            choice: as often as the checkpoints).
+        eval_trees: Held-out trees per evaluation (our choice: 10, ~1 min with LK tracking).
+        normalize: Wrap the training envs in ``VecNormalize`` (running mean/std of the
+            observation vector and of the return). Our choice: off, the observation is
+            already scaled to about [0, 1] and the rewards are O(1).
+        ppo: PPO hyper-parameters.
+    """
+
+    env_id: str = ENV_ID
+    timesteps: int = 100_000
+    n_envs: int = 1
+    seed: int = 0
+    tracker: str = "lk"
+    segmenter: str = "gt"
+    tree: str = "paper"
+    end_height_m: float | None = None
+    speed_mps: float | None = None
+    checkpoint_every: int = 10_000
+    eval_every: int = 10_000
+    eval_trees: int = 10
+    normalize: bool = False
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+
+    def __post_init__(self) -> None:
+        if self.env_id not in ENV_IDS:
+            raise ValueError(f"TrainConfig.env_id must be one of {ENV_IDS}, got {self.env_id!r}")
+        _require_int("TrainConfig.timesteps", self.timesteps, minimum=1)
+        _require_int("TrainConfig.n_envs", self.n_envs, minimum=1)
+        _require_int("TrainConfig.seed", self.seed, minimum=0, maximum=MAX_RUN_SEEDS - 1)
+        _require_int("TrainConfig.checkpoint_every", self.checkpoint_every, minimum=1)
+        _require_int("TrainConfig.eval_every", self.eval_every, minimum=0)
+        _require_int("TrainConfig.eval_trees", self.eval_trees, minimum=1, maximum=MAX_EVAL_TREES)
+        if not isinstance(self.normalize, bool):
+            raise ValueError(f"TrainConfig.normalize must be a bool, got {self.normalize!r}")
+        if not isinstance(self.ppo, PPOConfig):
+            raise ValueError(f"TrainConfig.ppo must be a PPOConfig, got {self.ppo!r}")
+        rollout = self.ppo.n_steps * self.n_envs
+        if self.ppo.batch_size > rollout:
+            raise ValueError(
+                f"PPOConfig.batch_size ({self.ppo.batch_size}) must be at most n_steps * n_envs "
+                f"({rollout})"
+            )
+        from branch_gym.env.config import env_config_from_kwargs
+
+        env_config_from_kwargs(self.env_kwargs())  # ValueError naming a bad scan setting
+
+    def env_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments of ``gymnasium.make(env_id, ...)`` for the training and eval envs."""
+        kwargs: dict[str, Any] = {
+            "tracker": self.tracker,
+            "segmenter": self.segmenter,
+            "tree": self.tree,
+        }
+        for name in ("end_height_m", "speed_mps"):
+            if getattr(self, name) is not None:
+                kwargs[name] = getattr(self, name)
+        return kwargs
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able dict of every field (``ppo`` nested)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        """The inverse of :meth:`to_dict`.
+
+        Raises:
+            ValueError: unknown keys (named) or bad values.
+        """
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise ValueError(
+                f"unknown TrainConfig key(s) {unknown}: expected some of {sorted(names)}"
+            )
+        values = dict(data)
+        ppo = values.pop("ppo", {})
+        if isinstance(ppo, dict):
+            ppo_names = {f.name for f in fields(PPOConfig)}
+            bad = sorted(set(ppo) - ppo_names)
+            if bad:
+                raise ValueError(
+                    f"unknown PPOConfig key(s) {bad}: expected some of {sorted(ppo_names)}"
+                )
+            ppo = PPOConfig(**ppo)
+        return cls(ppo=ppo, **values)
+
+    def resume_conflicts(self, saved: TrainConfig) -> list[str]:
+        """Fields (``ppo.x`` for PPO ones) that differ from a saved run's, beyond the resumable.
+
+        Returns:
+            ``"name: saved -> new"`` for each conflicting field; empty when resumable.
+        """
+        old, new = _flat(saved.to_dict()), _flat(self.to_dict())
+        return [
+            f"{key}: {old.get(key)!r} -> {new.get(key)!r}"
+            for key in sorted(old.keys() | new.keys())
+            if key not in RESUMABLE_CHANGES and old.get(key) != new.get(key)
+        ]
+
+
+def _flat(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def _is_number(value: object) -> bool:
+    """A real number (bool excluded)."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def _require_int(name: str, value: object, minimum: int, maximum: int | None = None) -> None:
+    ok = isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum
+    if ok and maximum is not None:
+        ok = value <= maximum
+    if not ok:
+        bound = f"in [{minimum}, {maximum}]" if maximum is not None else f">= {minimum}"
+        raise ValueError(f"{name} must be an int {bound}, got {value!r}")
+
+
+def _require_number(name: str, value: object, positive: bool) -> None:
+    ok = _is_number(value) and math.isfinite(value) and (value > 0 if positive else value >= 0)
+    if not ok:
+        raise ValueError(
+            f"{name} must be a {'positive' if positive else 'non-negative'} "
+            f"finite number, got {value!r}"
+        )

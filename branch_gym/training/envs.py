@@ -1,0 +1,92 @@
+"""The training and evaluation environments of a run.
+
+Training: ``n_envs`` copies of the run's env id, each wrapped in :class:`TreeSeedWrapper` (its own
+sequence of training trees) and SB3's ``Monitor``, in a ``SubprocVecEnv`` when ``n_envs > 1``
+(a ``DummyVecEnv`` otherwise), optionally inside ``VecNormalize``. Evaluation: one plain env in
+this process, reset on the held-out trees one by one (:mod:`branch_gym.training.seeds`).
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from typing import Any
+
+import gymnasium as gym
+from gymnasium import spaces
+
+from branch_gym.env.layout import VECTOR_KEY
+from branch_gym.training.config import TrainConfig
+from branch_gym.training.seeds import TreeSeedWrapper
+
+# One BLAS / OpenCV / torch thread per env process: workers run side by side on few cores.
+_WORKER_THREADS = 1
+DICT_POLICY = "MultiInputPolicy"
+FLAT_POLICY = "MlpPolicy"
+
+
+def make_env(config: TrainConfig, rank: int) -> gym.Env:
+    """Training env ``rank``: the env id with the run's settings, its trees, episode stats."""
+    from stable_baselines3.common.monitor import Monitor
+
+    os.environ.setdefault("OMP_NUM_THREADS", str(_WORKER_THREADS))
+    import cv2
+    import torch
+
+    import branch_gym  # noqa: F401  (registers the ids in a fresh worker process)
+
+    cv2.setNumThreads(_WORKER_THREADS)
+    torch.set_num_threads(_WORKER_THREADS)
+    env = gym.make(config.env_id, **config.env_kwargs())
+    env = TreeSeedWrapper(env, config.seed, rank, config.n_envs)
+    return Monitor(env)
+
+
+def make_train_env(config: TrainConfig, normalizer: Any = None) -> Any:
+    """The vectorised training envs (``VecNormalize`` on top when ``config.normalize``).
+
+    Args:
+        config: The run.
+        normalizer: Saved ``VecNormalize`` statistics to continue from (resume), or None for
+            fresh ones.
+    """
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+
+    factories = [functools.partial(make_env, config, rank) for rank in range(config.n_envs)]
+    venv = SubprocVecEnv(factories) if config.n_envs > 1 else DummyVecEnv(factories)
+    if not config.normalize:
+        return venv
+    if normalizer is not None:
+        normalizer.set_venv(venv)
+        return normalizer
+    keys = [VECTOR_KEY] if isinstance(venv.observation_space, spaces.Dict) else None
+    return VecNormalize(venv, norm_obs_keys=keys, gamma=config.ppo.gamma)
+
+
+def make_eval_env(config: TrainConfig) -> gym.Env:
+    """The evaluation env: the training settings, in this process, trees chosen per reset."""
+    import branch_gym  # noqa: F401
+
+    return gym.make(config.env_id, **config.env_kwargs())
+
+
+def policy_class(observation_space: spaces.Space) -> str:
+    """SB3's policy for an observation space: MultiInputPolicy for Dict, MlpPolicy for a Box."""
+    return DICT_POLICY if isinstance(observation_space, spaces.Dict) else FLAT_POLICY
+
+
+def episode_counts(venv: Any) -> list[int]:
+    """Episodes started by each training env (their :class:`TreeSeedWrapper` counters)."""
+    return [int(n) for n in venv.get_attr("episodes")]
+
+
+def restore_episode_counts(venv: Any, counts: list[int]) -> None:
+    """Continue each training env's tree sequence after ``counts`` episodes (resume).
+
+    Raises:
+        ValueError: ``counts`` does not hold one count per env.
+    """
+    if len(counts) != venv.num_envs:
+        raise ValueError(f"episode counts {counts} do not match n_envs={venv.num_envs}")
+    for rank, count in enumerate(counts):
+        venv.env_method("set_episodes", int(count), indices=[rank])

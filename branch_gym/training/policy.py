@@ -1,0 +1,177 @@
+"""Loading trained policies: SB3 PPO models as agents with ``predict``, clear errors on bad files.
+
+:func:`load_policy` returns a :class:`PolicyAgent`: the model's ``predict(obs, state,
+episode_start, deterministic)`` with ``deterministic=True`` by default (evaluation must not
+sample), the ``VecNormalize`` statistics saved beside the model applied to the observation, and,
+for a model trained on ``BranchScanFlat-v0`` acting in a Dict-observation env, the observation
+flattened the way the env flattens it. ``agents.baselines.make_agent("ppo:PATH", env)`` uses it.
+"""
+
+from __future__ import annotations
+
+import logging
+import pickle
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from branch_gym.env.layout import IMAGE_KEY, VECTOR_KEY
+from branch_gym.training.paths import normalizer_path
+
+logger = logging.getLogger(__name__)
+
+PPO_SPEC_PREFIX = "ppo:"  # policy spec "ppo:PATH" (eval.py --policies, make_agent)
+_PIXEL_FULL = 255.0  # the flat observation holds the image / 255 (branch_gym.env.observation)
+
+
+class ModelFileError(ValueError):
+    """A model (or its normalisation statistics) file exists but cannot be loaded."""
+
+
+def load_model(path: str | Path, env: Any = None, **kwargs: Any) -> Any:
+    """Load a stable-baselines3 PPO model (on the CPU).
+
+    Args:
+        path: The model's ``.zip`` file.
+        env: Passed to ``PPO.load`` (training envs when resuming).
+        **kwargs: More ``PPO.load`` arguments (e.g. ``tensorboard_log``).
+
+    Raises:
+        FileNotFoundError: no such file (named).
+        ModelFileError: the file is not a readable PPO model (named, with the cause).
+    """
+    from stable_baselines3 import PPO
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"model file {path} does not exist")
+    try:
+        return PPO.load(path, env=env, device="cpu", **kwargs)
+    except Exception as exc:  # SB3 raises ValueError, KeyError, pickle and zip errors
+        raise ModelFileError(
+            f"model file {path} is not a readable stable-baselines3 PPO model "
+            f"({type(exc).__name__}: {exc})"
+        ) from exc
+
+
+def load_normalizer(path: str | Path) -> Any:
+    """Unpickle ``VecNormalize`` statistics (without an env: for ``normalize_obs`` only).
+
+    Raises:
+        FileNotFoundError: no such file (named).
+        ModelFileError: the file does not hold ``VecNormalize`` statistics (named).
+    """
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"VecNormalize statistics file {path} does not exist")
+    try:
+        with path.open("rb") as handle:
+            normalizer = pickle.load(handle)
+    except Exception as exc:
+        raise ModelFileError(
+            f"VecNormalize statistics file {path} is unreadable ({type(exc).__name__}: {exc})"
+        ) from exc
+    if not isinstance(normalizer, VecNormalize):
+        raise ModelFileError(f"{path} holds a {type(normalizer).__name__}, not VecNormalize stats")
+    return normalizer
+
+
+class PolicyAgent:
+    """A trained model acting in a ``BranchScan`` env (SB3's ``predict`` signature).
+
+    Args:
+        model: The SB3 model.
+        normalizer: ``VecNormalize`` statistics the model was trained with, or None.
+        flatten_dict: Flatten Dict observations (vector, then image / 255) for a model trained
+            on flat observations.
+    """
+
+    def __init__(self, model: Any, normalizer: Any = None, flatten_dict: bool = False) -> None:
+        self.model = model
+        self.normalizer = normalizer
+        self.flatten_dict = flatten_dict
+
+    def predict(
+        self,
+        observation: dict | np.ndarray,
+        state: Any = None,
+        episode_start: np.ndarray | bool | None = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """The model's action(s) for one observation or a batch (deterministic by default)."""
+        if self.flatten_dict and isinstance(observation, dict):
+            observation = flatten_observation(observation)
+        if self.normalizer is not None:
+            observation = self.normalizer.normalize_obs(observation)
+        if episode_start is not None:
+            episode_start = np.asarray(episode_start, bool).reshape(-1)
+        return self.model.predict(observation, state, episode_start, deterministic)
+
+
+def flatten_observation(observation: dict) -> np.ndarray:
+    """A Dict observation (single or batched) as the flat env gives it: vector, image / 255."""
+    vector = np.asarray(observation[VECTOR_KEY], np.float32)
+    image = np.asarray(observation[IMAGE_KEY])
+    batch = vector.shape[:-1]
+    pixels = image.reshape(*batch, -1).astype(np.float32) / _PIXEL_FULL
+    return np.concatenate([vector, pixels], axis=-1)
+
+
+def load_policy(path: str | Path, env: Any = None) -> PolicyAgent:
+    """A trained PPO model as an agent; ``PATH_vecnormalize.pkl`` beside it is applied if present.
+
+    Args:
+        path: The model's ``.zip`` file (e.g. ``runs/NAME/final_model.zip``).
+        env: The env the agent will act in (possibly wrapped or vectorised); when given, its
+            spaces are checked against the model's.
+
+    Raises:
+        FileNotFoundError: the model file does not exist (named).
+        ModelFileError: the model or its statistics file is unreadable (named).
+        ValueError: the model does not fit ``env``'s observation or action space.
+    """
+    model = load_model(path)
+    stats = normalizer_path(Path(path))
+    normalizer = load_normalizer(stats) if stats.exists() else None
+    flatten_dict = False
+    if env is not None:
+        flatten_dict = _check_spaces(Path(path), model, env)
+    return PolicyAgent(model, normalizer, flatten_dict)
+
+
+def check_ppo_spec(spec: str) -> Path:
+    """Validate a ``ppo:PATH`` spec without loading the model: the file must exist.
+
+    Raises:
+        ValueError: not a ``ppo:`` spec, or an empty path.
+        FileNotFoundError: the model file does not exist (named).
+    """
+    if not spec.startswith(PPO_SPEC_PREFIX) or not spec[len(PPO_SPEC_PREFIX) :]:
+        raise ValueError(f"expected a policy spec 'ppo:PATH_TO_MODEL.zip', got {spec!r}")
+    path = Path(spec[len(PPO_SPEC_PREFIX) :])
+    if not path.is_file():
+        raise FileNotFoundError(f"model file {path} of policy spec {spec!r} does not exist")
+    return path
+
+
+def _check_spaces(path: Path, model: Any, env: Any) -> bool:
+    """Raise unless ``model`` can act in ``env``; True when Dict observations need flattening."""
+    env_obs = env.observation_space
+    env_actions = env.action_space
+    if env_actions != model.action_space:
+        raise ValueError(
+            f"model {path} acts in {model.action_space}, the env in {env_actions}: "
+            "train on the env id the evaluation uses"
+        )
+    if env_obs == model.observation_space:
+        return False
+    if isinstance(env_obs, spaces.Dict) and isinstance(model.observation_space, spaces.Box):
+        size = sum(int(np.prod(space.shape)) for space in env_obs.spaces.values())
+        if model.observation_space.shape == (size,):
+            logger.debug("model %s takes flat observations: flattening the env's Dict", path)
+            return True
+    raise ValueError(f"model {path} observes {model.observation_space}, the env gives {env_obs}")

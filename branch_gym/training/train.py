@@ -1,0 +1,218 @@
+"""Train a PPO rotation policy: new runs, resumed runs, checkpoints, held-out evaluation.
+
+:func:`train` is what ``train.py`` at the repository root calls. A run lives in one folder
+(:class:`branch_gym.training.paths.RunPaths`); ``resume=True`` continues it from its latest
+checkpoint with the step count going on (SB3's ``reset_num_timesteps=False``), the training envs
+on new trees and the best held-out reward remembered.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from branch_gym.training.callbacks import ScanMetricsCallback, TqdmCallback
+from branch_gym.training.checkpoints import (
+    CheckpointCallback,
+    read_checkpoint,
+    save_model,
+    write_checkpoint,
+    write_json_atomic,
+)
+from branch_gym.training.config import RESUMABLE_CHANGES, TrainConfig
+from branch_gym.training.envs import (
+    make_eval_env,
+    make_train_env,
+    policy_class,
+    restore_episode_counts,
+)
+from branch_gym.training.evaluation import EvalResult, HeldOutEvalCallback
+from branch_gym.training.paths import TB_LOG_NAME, RunPaths
+from branch_gym.training.policy import load_model, load_normalizer
+from branch_gym.training.seeds import eval_tree_seeds, train_seed_range
+
+logger = logging.getLogger(__name__)
+
+_TORCH_THREADS = 1  # one thread: the machine's cores run the env workers
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What a call of :func:`train` did.
+
+    Attributes:
+        out: The run folder.
+        final_model: ``OUT/final_model.zip``.
+        num_timesteps: Environment steps trained in total (all calls of the run).
+        start_timesteps: Steps the run had when this call started (0 for a new run).
+        evaluations: The held-out evaluations of this call.
+    """
+
+    out: Path
+    final_model: Path
+    num_timesteps: int
+    start_timesteps: int
+    evaluations: list[EvalResult] = field(default_factory=list)
+
+
+def train(
+    config: TrainConfig, out: str | Path, resume: bool = False, progress: bool = False
+) -> TrainResult:
+    """Train (or go on training) a PPO policy until ``config.timesteps`` environment steps.
+
+    Args:
+        config: The run's configuration; when resuming it must equal the saved one except for
+            ``RESUMABLE_CHANGES`` (the step target, the checkpoint and evaluation periods).
+        out: The run folder.
+        resume: Continue from the latest checkpoint in ``out``.
+        progress: Show a tqdm progress bar (on stderr).
+
+    Raises:
+        FileExistsError: a new run in a folder that already holds one.
+        FileNotFoundError: resuming without a checkpoint, or its model file is missing (named).
+        ValueError: the config differs from the saved run's; a corrupt config, checkpoint or
+            model file (named; ``ModelFileError`` and ``CheckpointError`` are ValueErrors).
+    """
+    import torch
+
+    torch.set_num_threads(_TORCH_THREADS)
+    paths = RunPaths(Path(out))
+    checkpoint = _check_run_folder(config, paths, resume)
+    model, normalizer, best = None, None, None
+    if checkpoint is not None:  # load before starting env processes: bad files fail fast
+        model = load_model(
+            paths.checkpoints / checkpoint.model, tensorboard_log=str(paths.tensorboard)
+        )
+        if checkpoint.vecnormalize is not None:
+            normalizer = load_normalizer(paths.checkpoints / checkpoint.vecnormalize)
+        best = checkpoint.best_mean_reward
+    write_run_config(paths, config)
+    venv = make_train_env(config, normalizer)
+    eval_env = make_eval_env(config) if config.eval_every > 0 else None
+    try:
+        if model is None:
+            model = _new_model(config, venv, paths)
+        else:
+            model.set_env(venv)
+            model.set_random_seed(_resume_seed(config.seed, checkpoint.num_timesteps))
+            restore_episode_counts(venv, checkpoint.episodes)
+        start = int(model.num_timesteps)
+        evaluator = None
+        if eval_env is not None:
+            seeds = eval_tree_seeds(config.eval_trees)
+            evaluator = HeldOutEvalCallback(eval_env, seeds, config.eval_every, paths, best)
+
+        def best_reward() -> float | None:
+            return evaluator.best_mean_reward if evaluator is not None else best
+
+        callbacks: list[Any] = [
+            ScanMetricsCallback(),
+            CheckpointCallback(paths, config.checkpoint_every, best_reward),
+            *([evaluator] if evaluator is not None else []),
+            *([TqdmCallback(config.timesteps)] if progress else []),
+        ]
+        remaining = config.timesteps - start
+        if remaining > 0:
+            model.learn(
+                total_timesteps=remaining,
+                callback=callbacks,
+                reset_num_timesteps=checkpoint is None,
+                tb_log_name=TB_LOG_NAME,
+            )
+        else:
+            logger.info("%s already has %d >= %d steps", paths.out, start, config.timesteps)
+        save_model(model, venv, paths.final_model)
+        write_checkpoint(model, venv, paths, best_reward())
+    finally:
+        venv.close()
+        if eval_env is not None:
+            eval_env.close()
+    return TrainResult(
+        out=paths.out,
+        final_model=paths.final_model,
+        num_timesteps=int(model.num_timesteps),
+        start_timesteps=start,
+        evaluations=list(evaluator.results) if evaluator is not None else [],
+    )
+
+
+def write_run_config(paths: RunPaths, config: TrainConfig) -> None:
+    """``OUT/config.json``: the configuration, the tree seed ranges and library versions."""
+    import stable_baselines3
+    import torch
+
+    train_seeds = train_seed_range(config.seed)
+    eval_seeds = eval_tree_seeds(config.eval_trees)
+    write_json_atomic(
+        paths.config,
+        {
+            "config": config.to_dict(),
+            "tree_seeds": {
+                "train_first": train_seeds.start,
+                "train_last": train_seeds.stop - 1,
+                "eval": eval_seeds,
+            },
+            "versions": {
+                "stable_baselines3": stable_baselines3.__version__,
+                "torch": torch.__version__,
+            },
+        },
+    )
+
+
+def read_run_config(paths: RunPaths) -> TrainConfig:
+    """The configuration saved in ``OUT/config.json``.
+
+    Raises:
+        FileNotFoundError: no config file (named).
+        ValueError: the file is not a valid run configuration (named).
+    """
+    if not paths.config.is_file():
+        raise FileNotFoundError(f"run config {paths.config} does not exist")
+    try:
+        return TrainConfig.from_dict(json.loads(paths.config.read_text())["config"])
+    except (ValueError, TypeError, KeyError) as exc:
+        raise ValueError(f"run config {paths.config} is invalid: {exc}") from exc
+
+
+def _check_run_folder(config: TrainConfig, paths: RunPaths, resume: bool) -> Any:
+    """The checkpoint to resume from (None for a new run), after checking the folder."""
+    if not resume:
+        if paths.config.exists() or paths.checkpoint.exists():
+            raise FileExistsError(
+                f"{paths.out} already holds a training run: pass --resume to continue it, or "
+                "use another --out"
+            )
+        return None
+    checkpoint = read_checkpoint(paths)
+    conflicts = config.resume_conflicts(read_run_config(paths))
+    if conflicts:
+        raise ValueError(
+            f"cannot resume {paths.out} with another configuration (only "
+            f"{', '.join(RESUMABLE_CHANGES)} may change): " + "; ".join(conflicts)
+        )
+    return checkpoint
+
+
+def _new_model(config: TrainConfig, venv: Any, paths: RunPaths) -> Any:
+    from stable_baselines3 import PPO
+
+    return PPO(
+        policy_class(venv.observation_space),
+        venv,
+        seed=config.seed,
+        device="cpu",
+        tensorboard_log=str(paths.tensorboard),
+        verbose=0,
+        **config.ppo.sb3_kwargs(),
+    )
+
+
+def _resume_seed(seed: int, num_timesteps: int) -> int:
+    """The RNG seed of a run resumed at ``num_timesteps``: a function of the run seed only."""
+    return int(np.random.SeedSequence([seed, num_timesteps]).generate_state(1)[0])

@@ -1,0 +1,282 @@
+"""Training: the CLI end to end, resuming, checkpoints, loading models, seeds, configs."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+import branch_gym
+from agents.baselines import make_agent
+from branch_gym.evaluation.env_trial import run_scan_in_env
+from branch_gym.scan import ScanConfig
+from branch_gym.training.callbacks import scan_metrics
+from branch_gym.training.checkpoints import CheckpointError, read_checkpoint
+from branch_gym.training.config import PPOConfig, TrainConfig
+from branch_gym.training.envs import DICT_POLICY, FLAT_POLICY, policy_class
+from branch_gym.training.paths import RunPaths
+from branch_gym.training.policy import (
+    ModelFileError,
+    PolicyAgent,
+    check_ppo_spec,
+    flatten_observation,
+    load_policy,
+)
+from branch_gym.training.seeds import (
+    EVAL_SEED_BASE,
+    MAX_EVAL_TREES,
+    MAX_RUN_SEEDS,
+    TreeSeedWrapper,
+    eval_tree_seeds,
+    train_seed_range,
+    train_tree_seed,
+)
+from branch_gym.training.train import train
+
+ROOT = Path(__file__).resolve().parents[1]
+SHORT = {"tracker": "oracle", "end_height_m": 0.33}  # ~6 steps per episode
+FIRST_STEPS, RESUMED_STEPS = 128, 192
+# Tiny PPO: rollouts of 32 steps; a small action std (std 0.05 x 45 deg) keeps rotations short.
+CLI_ARGS = [
+    "--tracker", "oracle", "--end-height", "0.33", "--n-envs", "1", "--seed", "3",
+    "--n-steps", "32", "--batch-size", "32", "--n-epochs", "2", "--log-std-init", "-3",
+    "--checkpoint-every", "64", "--eval-every", "64", "--eval-trees", "1",
+]  # fmt: skip
+
+
+def load_cli():
+    """train.py as a module (a script at the repository root, not a package)."""
+    spec = importlib.util.spec_from_file_location("train_cli", ROOT / "train.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+# ------------------------------------------------------------------ seeds and configs (fast)
+def test_training_and_evaluation_trees_are_disjoint() -> None:
+    eval_seeds = set(eval_tree_seeds(MAX_EVAL_TREES))
+    assert min(eval_seeds) >= EVAL_SEED_BASE  # above eval.py's benchmark trees
+    ranges = [train_seed_range(seed) for seed in (0, 1, MAX_RUN_SEEDS - 1)]
+    for r in ranges:
+        assert r.start > max(eval_seeds)
+        assert r.stop - 1 < 2**31 - 1
+    assert ranges[0].stop <= ranges[1].start  # run seeds do not share trees
+    assert eval_tree_seeds(3) == eval_tree_seeds(3)  # the same held-out trees every time
+    per_env = [{train_tree_seed(0, rank, 3, e) for e in range(50)} for rank in range(3)]
+    assert not (per_env[0] & per_env[1]) and not (per_env[1] & per_env[2])
+    assert all(s in ranges[0] for seeds in per_env for s in seeds)
+    with pytest.raises(ValueError, match="seed"):
+        train_tree_seed(MAX_RUN_SEEDS, 0, 1, 0)
+
+
+class _SeedRecorder(gymnasium.Env):
+    observation_space = spaces.Box(0, 1, (1,))
+    action_space = spaces.Box(0, 1, (1,))
+
+    def __init__(self) -> None:
+        self.seeds: list[int | None] = []
+
+    def reset(self, *, seed=None, options=None):
+        self.seeds.append(seed)
+        return np.zeros(1, np.float32), {}
+
+
+def test_tree_seed_wrapper_ignores_vec_env_seeds_and_resumes() -> None:
+    inner = _SeedRecorder()
+    env = TreeSeedWrapper(inner, seed=5, rank=1, n_envs=2)
+    env.reset(seed=123)
+    env.reset()
+    env.set_episodes(10)
+    env.reset()
+    assert inner.seeds == [train_tree_seed(5, 1, 2, e) for e in (0, 1, 10)]
+
+
+def test_config_validation_names_the_field() -> None:
+    for kwargs, field in [
+        ({"n_envs": 0}, "n_envs"),
+        ({"env_id": "Nope-v0"}, "env_id"),
+        ({"seed": -1}, "seed"),
+        ({"eval_trees": 0}, "eval_trees"),
+        ({"tracker": "sift"}, "tracker"),
+        ({"ppo": PPOConfig(n_steps=8, batch_size=64)}, "batch_size"),
+    ]:
+        with pytest.raises(ValueError, match=field):
+            TrainConfig(**kwargs)
+    with pytest.raises(ValueError, match="gamma"):
+        PPOConfig(gamma=1.5)
+    config = TrainConfig(n_envs=2, end_height_m=0.5, ppo=PPOConfig(n_steps=64))
+    assert TrainConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    assert config.resume_conflicts(config) == []
+    longer = TrainConfig.from_dict({**config.to_dict(), "timesteps": 10**6})
+    assert longer.resume_conflicts(config) == []
+    other = TrainConfig.from_dict({**config.to_dict(), "tracker": "oracle"})
+    assert other.resume_conflicts(config) == ["tracker: 'lk' -> 'oracle'"]
+
+
+def test_scan_metrics_skip_undefined_values() -> None:
+    row = {"missed_pct": None, "spurious_pct": 0.0, "rotations": 2, "scan_time_s": 20.0}
+    metrics = scan_metrics({**row, "failure": "lost_branch"})
+    assert metrics == {"spurious_pct": 0.0, "rotations": 2.0, "scan_time_s": 20.0, "failed": 1.0}
+
+
+def test_policy_class_follows_the_observation_space() -> None:
+    env = gymnasium.make(branch_gym.ENV_ID, **SHORT)
+    flat = gymnasium.make(branch_gym.FLAT_ENV_ID, **SHORT)
+    try:
+        assert policy_class(env.observation_space) == DICT_POLICY
+        assert policy_class(flat.observation_space) == FLAT_POLICY
+        dict_obs, _ = env.reset(seed=1)
+        flat_obs, _ = flat.reset(seed=1)
+        assert np.allclose(flatten_observation(dict_obs), flat_obs)
+        batch = {k: np.stack([v, v]) for k, v in dict_obs.items()}
+        assert flatten_observation(batch).shape == (2, *flat_obs.shape)
+    finally:
+        env.close()
+        flat.close()
+
+
+# ------------------------------------------------------------------ bad files (fast)
+def test_missing_or_corrupt_model_files_give_clear_errors(tmp_path: Path) -> None:
+    missing = tmp_path / "nope.zip"
+    with pytest.raises(FileNotFoundError, match=r"nope\.zip"):
+        load_policy(missing)
+    with pytest.raises(FileNotFoundError, match=r"nope\.zip"):
+        make_agent(f"ppo:{missing}", None)
+    with pytest.raises(ValueError, match="ppo:PATH"):
+        check_ppo_spec("ppo:")
+    corrupt = tmp_path / "corrupt.zip"
+    corrupt.write_bytes(b"definitely not a zip file")
+    with pytest.raises(ModelFileError, match=r"corrupt\.zip"):
+        load_policy(corrupt)
+
+
+def test_resume_without_or_with_a_corrupt_checkpoint(tmp_path: Path) -> None:
+    config = TrainConfig(**SHORT)
+    with pytest.raises(FileNotFoundError, match=r"checkpoint\.json"):
+        train(config, tmp_path / "empty", resume=True)
+    paths = RunPaths(tmp_path / "torn")
+    paths.checkpoints.mkdir(parents=True)
+    paths.checkpoint.write_text("{not json")
+    with pytest.raises(CheckpointError, match=r"checkpoint\.json"):
+        read_checkpoint(paths)
+    paths.checkpoint.write_text(
+        json.dumps({"num_timesteps": 64, "model": "model_64.zip", "vecnormalize": None,
+                    "episodes": [3], "best_mean_reward": None})
+    )  # fmt: skip
+    with pytest.raises(FileNotFoundError, match=r"model_64\.zip"):
+        read_checkpoint(paths)
+    (paths.checkpoints / "model_64.zip").write_bytes(b"\x00" * 10)
+    paths.config.write_text(json.dumps({"config": config.to_dict()}))
+    with pytest.raises(ModelFileError, match=r"model_64\.zip"):
+        train(config, paths.out, resume=True)
+
+
+# ------------------------------------------------------------------ end to end (slow)
+@pytest.mark.slow
+def test_train_load_and_resume_end_to_end(tmp_path: Path) -> None:
+    """A tiny PPO run through the CLI (128 steps), then resumed to 192 steps.
+
+    One test, not several sharing a fixture: pytest-xdist would train once per worker.
+    """
+    out = tmp_path / "run"
+    cli = load_cli()
+    assert cli.main(["--timesteps", str(FIRST_STEPS), "--out", str(out), *CLI_ARGS]) == 0
+    check_first_run(RunPaths(out))
+    check_loaded_model_acts(RunPaths(out))
+    check_resume(cli, RunPaths(out))
+
+
+def check_first_run(paths: RunPaths) -> None:
+    saved = json.loads(paths.config.read_text())
+    config = TrainConfig.from_dict(saved["config"])
+    assert (config.seed, config.tracker, config.end_height_m, config.ppo.n_steps) == (
+        3, "oracle", 0.33, 32,
+    )  # fmt: skip
+    assert saved["tree_seeds"]["train_first"] == train_seed_range(3).start
+    assert saved["tree_seeds"]["eval"] == eval_tree_seeds(1)
+    checkpoint = read_checkpoint(paths)
+    assert checkpoint.num_timesteps == FIRST_STEPS
+    assert checkpoint.episodes[0] > 1  # whole scans were played
+    evaluations = [json.loads(line) for line in paths.evaluations.read_text().splitlines()]
+    assert [e["num_timesteps"] for e in evaluations] == [64, 128]
+    assert paths.best_model.is_file() and paths.final_model.is_file()
+    tags = _tensorboard_tags(paths.tensorboard)
+    for tag in ("scan/spurious_pct", "scan/rotations", "scan/scan_time_s", "episode/scan_time_s",
+                "eval/mean_reward", "eval/scan_time_s", "rollout/ep_rew_mean"):  # fmt: skip
+        assert tag in tags, tag
+
+
+def check_loaded_model_acts(paths: RunPaths) -> None:
+    agent = load_policy(paths.final_model)
+    assert isinstance(agent, PolicyAgent)
+    env = gymnasium.make(branch_gym.ENV_ID, **SHORT)
+    obs, _ = env.reset(seed=EVAL_SEED_BASE)
+    env.close()
+    action, state = agent.predict(obs, deterministic=True)
+    assert action.shape == (1,) and env.action_space.contains(action.astype(np.float32))
+    assert state is None
+    batch = {k: np.stack([v, v]) for k, v in obs.items()}
+    actions, _ = agent.predict(batch, episode_start=np.array([True, False]))
+    assert actions.shape == (2, 1) and np.allclose(actions[0], action)
+    # eval.py's path: the "ppo:PATH" spec plays a whole scan.
+    result = run_scan_in_env(0, f"ppo:{paths.final_model}", ScanConfig(**SHORT))
+    assert result.policy == f"ppo:{paths.final_model}" and result.n_iterations > 0
+
+
+def check_resume(cli, paths: RunPaths) -> None:
+    before = read_checkpoint(paths)
+    argv = ["--timesteps", str(RESUMED_STEPS), "--out", str(paths.out), *CLI_ARGS]
+    assert cli.main(argv) == 2  # a new run into a run folder is refused
+    assert cli.main([*argv, "--resume", "--tracker", "lk"]) == 2  # another configuration
+    assert cli.main([*argv, "--resume"]) == 0
+    after = read_checkpoint(paths)
+    assert after.num_timesteps == RESUMED_STEPS > before.num_timesteps
+    assert after.episodes[0] > before.episodes[0]  # new trees, not the same ones again
+    assert load_policy(paths.final_model).model.num_timesteps == RESUMED_STEPS
+    saved = TrainConfig.from_dict(json.loads(paths.config.read_text())["config"])
+    assert saved.timesteps == RESUMED_STEPS
+    assert len(paths.evaluations.read_text().splitlines()) == 3  # 64, 128, then 192
+
+
+@pytest.mark.slow
+def test_flat_env_with_vecnormalize_resumes_and_acts_in_the_dict_env(tmp_path: Path) -> None:
+    ppo = PPOConfig(n_steps=32, batch_size=32, n_epochs=1, log_std_init=-3.0)
+    config = TrainConfig(
+        env_id=branch_gym.FLAT_ENV_ID, timesteps=32, normalize=True, eval_every=0,
+        checkpoint_every=32, ppo=ppo, **SHORT,
+    )  # fmt: skip
+    out = tmp_path / "flat"
+    assert train(config, out).num_timesteps == 32
+    longer = TrainConfig.from_dict({**config.to_dict(), "timesteps": 64})
+    result = train(longer, out, resume=True)
+    assert (result.start_timesteps, result.num_timesteps) == (32, 64)
+    assert read_checkpoint(RunPaths(out)).vecnormalize == "model_000000064_vecnormalize.pkl"
+    env = gymnasium.make(branch_gym.ENV_ID, **SHORT)  # Dict observations
+    try:
+        agent = make_agent(f"ppo:{result.final_model}", env)
+        assert agent.normalizer is not None and agent.flatten_dict
+        obs, _ = env.reset(seed=EVAL_SEED_BASE)
+        action, _ = agent.predict(obs)
+        assert env.action_space.contains(action.astype(np.float32))
+        discrete = gymnasium.make(branch_gym.DISCRETE_ENV_ID, **SHORT)
+        with pytest.raises(ValueError, match="Discrete"):
+            make_agent(f"ppo:{result.final_model}", discrete)
+        discrete.close()
+    finally:
+        env.close()
+
+
+def _tensorboard_tags(folder: Path) -> set[str]:
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tags: set[str] = set()
+    for run in folder.iterdir():
+        events = EventAccumulator(str(run))
+        events.Reload()
+        tags |= set(events.Tags()["scalars"])
+    return tags

@@ -1,0 +1,130 @@
+"""Train a PPO rotation policy on the BranchScan environment (stable-baselines3).
+
+Usage::
+
+    python train.py --env BranchScan-v0 --timesteps 200000 --n-envs 2 --seed 0 --out runs/NAME \\
+        [--resume] [--tracker lk|oracle] [--segmenter gt|noisy:mild|...] [--tree paper] \\
+        [--end-height 0.75] [--speed 0.025] [--checkpoint-every 10000] [--eval-every 10000] \\
+        [--eval-trees 10] [--normalize] [--n-steps 256] [--batch-size 64] [--n-epochs 10] \\
+        [--learning-rate 3e-4] [--log-std-init 0]
+
+OUT then holds config.json, TensorBoard logs (tensorboard --logdir OUT/tb), checkpoints/,
+best_model.zip, evaluations.jsonl and final_model.zip. Evaluate a model with
+``python eval.py --policies none ppo:OUT/final_model.zip ...``. Training trees, the held-out
+evaluation trees and eval.py's trees never overlap (branch_gym/training/seeds.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+from pathlib import Path
+
+# One BLAS thread per process (the env workers inherit it): set before numpy / torch load.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from branch_gym import ENV_ID, ENV_IDS
+
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n", 1)[0],
+        epilog="A killed run loses at most --checkpoint-every steps: re-run the same command "
+        "with --resume (--timesteps, --checkpoint-every and --eval-every may change).",
+    )
+    parser.add_argument("--env", choices=ENV_IDS, default=ENV_ID, help="environment id")
+    parser.add_argument("--timesteps", type=int, required=True, help="total environment steps")
+    parser.add_argument("--n-envs", type=int, default=1, help="parallel envs (default 1)")
+    parser.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
+    parser.add_argument("--out", type=Path, required=True, help="run folder")
+    parser.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
+    parser.add_argument("--tracker", choices=("lk", "oracle"), help="point tracker (default lk)")
+    parser.add_argument("--segmenter", help="gt | noisy:mild | noisy:moderate | noisy:severe")
+    parser.add_argument("--tree", help="tree preset: paper | cluttered | hard")
+    parser.add_argument("--end-height", type=float, metavar="M", help="scan end height (m)")
+    parser.add_argument("--speed", type=float, metavar="MPS", help="scan speed (m/s)")
+    parser.add_argument("--checkpoint-every", type=int, metavar="STEPS", help="checkpoint period")
+    parser.add_argument("--eval-every", type=int, metavar="STEPS", help="evaluation period; 0 off")
+    parser.add_argument("--eval-trees", type=int, metavar="N", help="held-out trees per evaluation")
+    parser.add_argument("--normalize", action="store_true", help="VecNormalize obs vector + reward")
+    parser.add_argument("--n-steps", type=int, help="PPO steps per env per rollout")
+    parser.add_argument("--batch-size", type=int, help="PPO minibatch size")
+    parser.add_argument("--n-epochs", type=int, help="PPO epochs per rollout")
+    parser.add_argument("--learning-rate", type=float, help="PPO learning rate")
+    parser.add_argument("--log-std-init", type=float, help="initial log std of the action")
+    return parser
+
+
+def config_from_args(args: argparse.Namespace):  # -> TrainConfig (imported lazily)
+    """The TrainConfig of the parsed arguments (unset options keep the config defaults)."""
+    from branch_gym.training.config import PPOConfig, TrainConfig
+
+    ppo = {
+        "n_steps": args.n_steps,
+        "batch_size": args.batch_size,
+        "n_epochs": args.n_epochs,
+        "learning_rate": args.learning_rate,
+        "log_std_init": args.log_std_init,
+    }
+    run = {
+        "tracker": args.tracker,
+        "segmenter": args.segmenter,
+        "tree": args.tree,
+        "end_height_m": args.end_height,
+        "speed_mps": args.speed,
+        "checkpoint_every": args.checkpoint_every,
+        "eval_every": args.eval_every,
+        "eval_trees": args.eval_trees,
+    }
+    return TrainConfig(
+        env_id=args.env,
+        timesteps=args.timesteps,
+        n_envs=args.n_envs,
+        seed=args.seed,
+        normalize=args.normalize,
+        ppo=PPOConfig(**{k: v for k, v in ppo.items() if v is not None}),
+        **{k: v for k, v in run.items() if v is not None},
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    from branch_gym.training.train import train
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        config = config_from_args(args)
+    except (ValueError, TypeError) as exc:
+        parser.error(str(exc))
+    try:
+        result = train(config, args.out, resume=args.resume, progress=True)
+    except (FileExistsError, FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print(
+            f"\ninterrupted: re-run the same command with --resume to continue from the last "
+            f"checkpoint in {args.out / 'checkpoints'}",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    print(f"trained {result.start_timesteps} -> {result.num_timesteps} steps")
+    for evaluation in result.evaluations[-1:]:
+        print(
+            f"last held-out evaluation ({evaluation.episodes} trees): mean reward "
+            f"{evaluation.mean_reward:.3f}, missed {evaluation.missed_pct:.1f} %, scan time "
+            f"{evaluation.scan_time_s:.1f} s"
+        )
+    print(f"wrote {result.final_model}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
