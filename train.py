@@ -57,6 +57,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--n-epochs", type=int, help="PPO epochs per rollout")
     parser.add_argument("--learning-rate", type=float, help="PPO learning rate")
     parser.add_argument("--log-std-init", type=float, help="initial log std of the action")
+    parser.add_argument("--ent-coef", type=float, help="PPO entropy bonus")
+    parser.add_argument(
+        "--first-action-logit", type=float, help="initial logit bonus of discrete action 0 (hold)"
+    )
+    parser.add_argument("--gamma", type=float, help="PPO discount")
+    parser.add_argument(
+        "--pose-only-tracking-frames",
+        action="store_true",
+        help="render only the frames modeling iterations run on (needs --tracker oracle; faster)",
+    )
     return parser
 
 
@@ -70,6 +80,9 @@ def config_from_args(args: argparse.Namespace):  # -> TrainConfig (imported lazi
         "n_epochs": args.n_epochs,
         "learning_rate": args.learning_rate,
         "log_std_init": args.log_std_init,
+        "ent_coef": args.ent_coef,
+        "first_action_logit_init": args.first_action_logit,
+        "gamma": args.gamma,
     }
     run = {
         "tracker": args.tracker,
@@ -87,6 +100,7 @@ def config_from_args(args: argparse.Namespace):  # -> TrainConfig (imported lazi
         n_envs=args.n_envs,
         seed=args.seed,
         normalize=args.normalize,
+        render_tracking_frames=not args.pose_only_tracking_frames,
         ppo=PPOConfig(**{k: v for k, v in ppo.items() if v is not None}),
         **{k: v for k, v in run.items() if v is not None},
     )

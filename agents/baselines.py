@@ -29,27 +29,37 @@ import numpy as np
 from branch_gym.env.layout import OUTCOME_FIELDS, THETA_MAX_DEG, VectorField, vector_part
 
 _NO_PHASE = -1  # before the first rotation of an episode
+# Targets this close to the current angle hold it (deg; ScanConfig.rotation_tolerance_deg).
+_HOLD_TOLERANCE_DEG = 0.5
 
 
 class BaselineAgent:
-    """Encodes target angles as actions of a continuous or a discrete env.
+    """Encodes target angles as actions of a continuous, discrete or trigger env.
 
     Args:
         theta_max_deg: The env's ``theta_max_deg`` (continuous action = angle / theta_max).
         action_angles_deg: The env's ``discrete_angles_deg`` for a discrete env (actions are
             indices into it); None for a continuous env.
+        trigger_angles_deg: The env's ``trigger_angles_deg`` for a trigger env (hold, or advance
+            the rotation cycle: the agent's cycle must be the env's +theta, 0, -theta, 0).
     """
 
     def __init__(
         self,
         theta_max_deg: float = THETA_MAX_DEG,
         action_angles_deg: tuple[float, ...] | None = None,
+        trigger_angles_deg: tuple[float, ...] | None = None,
     ) -> None:
         if not (math.isfinite(theta_max_deg) and theta_max_deg > 0):
             raise ValueError(f"theta_max_deg must be positive, got {theta_max_deg}")
+        if action_angles_deg is not None and trigger_angles_deg is not None:
+            raise ValueError("give action_angles_deg (discrete) or trigger_angles_deg, not both")
         self.theta_max_deg = float(theta_max_deg)
         self.action_angles_deg = (
             None if action_angles_deg is None else tuple(float(a) for a in action_angles_deg)
+        )
+        self.trigger_angles_deg = (
+            None if trigger_angles_deg is None else tuple(float(a) for a in trigger_angles_deg)
         )
 
     @classmethod
@@ -57,10 +67,12 @@ class BaselineAgent:
         """An agent matching a (possibly wrapped or vector) BranchScanEnv's action settings."""
         config = _env_config(env)
         discrete = config.action_type == "discrete"
+        trigger = config.action_type == "trigger"
         return cls(
             *args,
             theta_max_deg=config.theta_max_deg,
             action_angles_deg=config.discrete_angles_deg if discrete else None,
+            trigger_angles_deg=config.trigger_angles_deg if trigger else None,
             **kwargs,
         )
 
@@ -85,7 +97,8 @@ class BaselineAgent:
             starts |= np.broadcast_to(np.asarray(episode_start, bool).reshape(-1), starts.shape)
         starts |= ~np.any(vectors[:, list(OUTCOME_FIELDS)] > 0, axis=1)
         angles, state = self._angles_deg(vectors, starts, state)
-        actions = self._encode(angles)
+        current = vectors[:, VectorField.ANGLE] * self.theta_max_deg
+        actions = self._encode(angles, current)
         return (actions if batched else actions[0]), state
 
     def _angles_deg(
@@ -94,12 +107,32 @@ class BaselineAgent:
         """(N,) target angles (deg) for (N, VECTOR_SIZE) observation vectors."""
         raise NotImplementedError
 
-    def _encode(self, angles_deg: np.ndarray) -> np.ndarray:
+    def _encode(self, angles_deg: np.ndarray, current_deg: np.ndarray) -> np.ndarray:
+        if self.trigger_angles_deg is not None:
+            return self._encode_trigger(angles_deg, current_deg)
         if self.action_angles_deg is None:
             return (angles_deg / self.theta_max_deg).astype(np.float32)[:, None]
         choices = np.asarray(self.action_angles_deg)
         index = np.abs(angles_deg[:, None] - choices[None, :]).argmin(axis=1)
         return index.astype(np.int64)
+
+    def _encode_trigger(self, angles_deg: np.ndarray, current_deg: np.ndarray) -> np.ndarray:
+        """0 where the target is the current angle; else the trigger of the target's |angle|."""
+        actions = np.zeros(len(angles_deg), np.int64)
+        thetas = np.asarray(self.trigger_angles_deg)
+        for i, (target, current) in enumerate(zip(angles_deg, current_deg, strict=True)):
+            if abs(target - current) <= _HOLD_TOLERANCE_DEG:
+                continue
+            if abs(target) <= _HOLD_TOLERANCE_DEG:  # back to 0: any trigger does it
+                actions[i] = 1
+                continue
+            match = np.flatnonzero(np.abs(thetas - abs(target)) <= _HOLD_TOLERANCE_DEG)
+            if len(match) == 0:
+                raise ValueError(
+                    f"target angle {target} deg is not a trigger angle {self.trigger_angles_deg}"
+                )
+            actions[i] = match[0] + 1
+        return actions
 
 
 class NoRotationAgent(BaselineAgent):
@@ -124,6 +157,7 @@ class PeriodicAgent(BaselineAgent):
         theta_max_deg: The env's ``theta_max_deg``.
         action_angles_deg: The env's ``discrete_angles_deg`` (discrete env), holding 0 and
             +-angle; None for a continuous env.
+        trigger_angles_deg: The env's ``trigger_angles_deg`` (trigger env), holding angle.
     """
 
     def __init__(
@@ -132,8 +166,9 @@ class PeriodicAgent(BaselineAgent):
         frequency: float,
         theta_max_deg: float = THETA_MAX_DEG,
         action_angles_deg: tuple[float, ...] | None = None,
+        trigger_angles_deg: tuple[float, ...] | None = None,
     ) -> None:
-        super().__init__(theta_max_deg, action_angles_deg)
+        super().__init__(theta_max_deg, action_angles_deg, trigger_angles_deg)
         if not (math.isfinite(angle_deg) and 0 < angle_deg <= self.theta_max_deg):
             raise ValueError(
                 f"angle_deg must be in (0, theta_max_deg={self.theta_max_deg}], got {angle_deg}"
@@ -147,6 +182,8 @@ class PeriodicAgent(BaselineAgent):
             raise ValueError(
                 f"action_angles_deg {self.action_angles_deg} must hold 0 and +-{angle_deg}"
             )
+        if self.trigger_angles_deg is not None and angle_deg not in self.trigger_angles_deg:
+            raise ValueError(f"trigger_angles_deg {self.trigger_angles_deg} must hold {angle_deg}")
         self.interval_fov = 1.0 / float(frequency)
         self._phases = np.zeros(0, np.int64)
 

@@ -111,6 +111,7 @@ class DisagreementAgent(BaselineAgent):
         theta_max_deg: The env's ``theta_max_deg``.
         action_angles_deg: The env's ``discrete_angles_deg`` (discrete env), holding 0 and
             +-angle; None for a continuous env.
+        trigger_angles_deg: The env's ``trigger_angles_deg`` (trigger env), holding angle.
     """
 
     def __init__(
@@ -118,8 +119,9 @@ class DisagreementAgent(BaselineAgent):
         config: DisagreementConfig | None = None,
         theta_max_deg: float = THETA_MAX_DEG,
         action_angles_deg: tuple[float, ...] | None = None,
+        trigger_angles_deg: tuple[float, ...] | None = None,
     ) -> None:
-        super().__init__(theta_max_deg, action_angles_deg)
+        super().__init__(theta_max_deg, action_angles_deg, trigger_angles_deg)
         self.config = config or DisagreementConfig()
         angle = self.config.angle_deg
         if angle > self.theta_max_deg:

@@ -7,7 +7,8 @@ from gymnasium.envs.registration import register, registry
 ENV_ID = "BranchScan-v0"  # continuous target angle, Dict observation
 DISCRETE_ENV_ID = "BranchScanDiscrete-v0"  # one of a few fixed angles, Dict observation
 FLAT_ENV_ID = "BranchScanFlat-v0"  # continuous target angle, flat float32 observation
-ENV_IDS = (ENV_ID, DISCRETE_ENV_ID, FLAT_ENV_ID)
+TRIGGER_ENV_ID = "BranchScanTrigger-v0"  # hold, or advance the paper's rotation cycle
+ENV_IDS = (ENV_ID, DISCRETE_ENV_ID, FLAT_ENV_ID, TRIGGER_ENV_ID)
 # Step limit of the registered ids (gymnasium's TimeLimit; our choice: generous, a full scan at
 # the paper's settings takes ~48 steps, ~100 with frequent rotations).
 MAX_EPISODE_STEPS = 200
@@ -20,6 +21,7 @@ def _register_envs() -> None:
         ENV_ID: {"action_type": "continuous"},
         DISCRETE_ENV_ID: {"action_type": "discrete"},
         FLAT_ENV_ID: {"action_type": "continuous", "flatten": True},
+        TRIGGER_ENV_ID: {"action_type": "trigger"},
     }
     for env_id, env_kwargs in kwargs.items():
         if env_id not in registry:

@@ -50,6 +50,9 @@ class ScanConfig:
             "lost_branch" (our choice: ~2 cm of travel without a usable mask).
         max_scan_time_s: Simulated time limit ("timeout"); our choice: 5x a straight scan.
         rotation_tolerance_deg: Target angles closer than this to the current one are no move.
+        render_tracking_frames: Render every frame of the tracking window (default). False
+            renders only the frames a modeling iteration runs on and feeds pose-only frames in
+            between: ~8x fewer renders, valid with the oracle tracker only (fast training).
         controller: Follow controller gains (speed is taken from ``speed_mps``).
         modeler: Reconstruction thresholds.
         world: The simulated world.
@@ -63,6 +66,7 @@ class ScanConfig:
     lost_branch_iterations: int = 20
     max_scan_time_s: float = 100.0
     rotation_tolerance_deg: float = 0.5
+    render_tracking_frames: bool = True
     controller: FollowControllerConfig = field(default_factory=FollowControllerConfig)
     modeler: ModelerConfig = field(default_factory=ModelerConfig)
     world: WorldConfig = field(default_factory=WorldConfig)
@@ -80,6 +84,11 @@ class ScanConfig:
         if self.tracker not in TRACKERS:
             raise ValueError(f"ScanConfig.tracker must be one of {TRACKERS}, got {self.tracker!r}")
         make_segmenter(self.segmenter)  # raises a ValueError naming the valid segmenters
+        if not self.render_tracking_frames and self.tracker != "oracle":
+            raise ValueError(
+                "ScanConfig.render_tracking_frames=False needs tracker='oracle': an image tracker "
+                f"needs every frame rendered (tracker={self.tracker!r})"
+            )
         if self.lost_branch_iterations < 1:
             raise ValueError("ScanConfig.lost_branch_iterations must be >= 1")
 
@@ -242,6 +251,9 @@ class ScanSession:
         """Render and feed a frame when the modeler wants one."""
         T = self.world.T_world_camera
         if not self.modeler.wants_frame(T):
+            return
+        if not self.config.render_tracking_frames and not self.modeler.iteration_due(T):
+            self.modeler.update(Frame.pose_only(T, self.intrinsics, self.scan_time_s))
             return
         images = self.world.render()
         mask = self.segmenter.segment(images.rgb, images.labels, self._segment_rng)

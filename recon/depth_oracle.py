@@ -40,6 +40,9 @@ class DepthOracleTracker:
     The queries are unprojected with the newest frame's depth and pose and projected into every
     older frame; a track is invalid where it falls outside the image, behind the camera, on a pixel
     without depth (non-positive or NaN), or behind the surface that frame sees (occluded).
+    Older pose-only frames (:meth:`recon.frame.Frame.pose_only`, no depth) get the projection
+    without the occlusion test: the window spans ~7 mm of motion, over which what hides a point
+    from the newest frame hides it from the older ones too.
     """
 
     def __init__(self, config: DepthOracleConfig | None = None) -> None:
@@ -49,11 +52,12 @@ class DepthOracleTracker:
         """Track by geometry; see :class:`PointTracker`.
 
         Raises:
-            ValueError: a frame carries no depth map.
+            ValueError: the newest frame, or an older frame that is not pose-only, carries no
+                depth map.
         """
         frames, query = check_window(frames, query_px)
         for i, frame in enumerate(frames):
-            if frame.depth_m is None:
+            if frame.depth_m is None and (frame.has_image or i == len(frames) - 1):
                 raise ValueError(f"frame {i} has no depth_m: the depth oracle tracker needs depth")
         tolerance = self.config.occlusion_tolerance_m
         newest = frames[-1]
@@ -70,6 +74,10 @@ class DepthOracleTracker:
         for k, frame in enumerate(frames[:-1]):
             projected, z_m = project_points(points, frame.T_world_camera, frame.intrinsics)
             inside = frame.intrinsics.in_image(projected) & (z_m > 0.0)
+            if frame.depth_m is None:  # pose-only: no occlusion test
+                keep = np.flatnonzero(inside)
+                pixels[k, index[keep]] = projected[keep]
+                continue
             surface = _sample_depth(frame.depth_m, projected[inside], tolerance)
             with np.errstate(invalid="ignore"):
                 visible = (surface > 0.0) & (z_m[inside] <= surface + tolerance)

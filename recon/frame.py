@@ -21,6 +21,8 @@ class Frame:
         intrinsics: Camera intrinsics matching the image size.
         timestamp_s: Optional acquisition time in seconds.
         depth_m: Optional (H, W) metric depth; only oracle trackers and diagnostics may read it.
+        has_image: False for a pose-only frame (:meth:`pose_only`): its ``rgb`` and ``mask`` are
+            blank placeholders that image trackers must refuse.
     """
 
     rgb: np.ndarray
@@ -29,6 +31,24 @@ class Frame:
     intrinsics: CameraIntrinsics
     timestamp_s: float | None = None
     depth_m: np.ndarray | None = None
+    has_image: bool = True
+
+    @classmethod
+    def pose_only(
+        cls,
+        T_world_camera: np.ndarray,
+        intrinsics: CameraIntrinsics,
+        timestamp_s: float | None = None,
+    ) -> Frame:
+        """A frame that carries only where the camera was (no image was rendered or captured).
+
+        A depth oracle tracker can project points into such a frame, which lets a simulator
+        render only the frames that a modeling iteration runs on (fast training).
+        """
+        h, w = intrinsics.height, intrinsics.width
+        blank_rgb = np.zeros((h, w, 3), np.uint8)
+        blank_mask = np.zeros((h, w), bool)
+        return cls(blank_rgb, blank_mask, T_world_camera, intrinsics, timestamp_s, None, False)
 
     def __post_init__(self) -> None:
         h, w = self.intrinsics.height, self.intrinsics.width

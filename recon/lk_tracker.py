@@ -97,6 +97,11 @@ class LucasKanadeTracker:
     def track(self, frames: Sequence[Frame], query_px: np.ndarray) -> Tracks:
         """Track ``query_px`` of ``frames[-1]`` back to ``frames[0]``; see :class:`PointTracker`."""
         frames, query = check_window(frames, query_px)
+        for i, frame in enumerate(frames):
+            if not frame.has_image:
+                raise ValueError(
+                    f"frame {i} is pose-only (no image): the Lucas-Kanade tracker needs images"
+                )
         pixels = np.full((len(frames), len(query), 2), np.nan)
         active = frames[-1].intrinsics.in_image(query, self.config.border_margin_px)
         pixels[-1, active] = query[active]

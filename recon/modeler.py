@@ -135,6 +135,22 @@ class Modeler:
         window_m = (self.config.tracking_frames - 1) * self.config.tracking_spacing_m
         return since >= self.config.iteration_spacing_m - window_m - self.config.tracking_spacing_m
 
+    def iteration_due(self, T_world_camera: np.ndarray) -> bool:
+        """Whether a frame at this pose would run an iteration (the others only fill the window).
+
+        A simulator with a depth oracle tracker renders only these frames and hands the modeler
+        :meth:`recon.frame.Frame.pose_only` frames in between.
+        """
+        if not self.wants_frame(T_world_camera):
+            return False
+        if len(self._window) + 1 < self.config.tracking_frames:
+            return False
+        if self._last_iteration_position is None:
+            return True
+        position = np.asarray(T_world_camera, float)[:3, 3]
+        since = np.linalg.norm(position - self._last_iteration_position)
+        return bool(since >= self.config.iteration_spacing_m * (1 - 1e-6))
+
     def update(self, frame: Frame) -> IterationReport | None:
         """Store ``frame`` if the camera moved enough and run an iteration when one is due.
 

@@ -37,6 +37,7 @@ SHORT = {
     "end_height_m": 0.32,
     "theta_max_deg": 4.0,
     "discrete_angles_deg": (-4.0, 0.0, 4.0),
+    "trigger_angles_deg": (2.0, 4.0),
 }
 # Two steps per episode: one iteration at ~0.284 m, then the end height.
 TINY = {**SHORT, "end_height_m": 0.29}

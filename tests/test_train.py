@@ -205,6 +205,7 @@ def check_first_run(paths: RunPaths) -> None:
     evaluations = [json.loads(line) for line in paths.evaluations.read_text().splitlines()]
     assert [e["num_timesteps"] for e in evaluations] == [64, 128]
     assert paths.best_model.is_file() and paths.final_model.is_file()
+    assert (paths.out / "training_curve.png").stat().st_size > 10_000
     tags = _tensorboard_tags(paths.tensorboard)
     for tag in ("scan/spurious_pct", "scan/rotations", "scan/scan_time_s", "episode/scan_time_s",
                 "eval/mean_reward", "eval/scan_time_s", "rollout/ep_rew_mean"):  # fmt: skip
@@ -280,3 +281,11 @@ def _tensorboard_tags(folder: Path) -> set[str]:
         events.Reload()
         tags |= set(events.Tags()["scalars"])
     return tags
+
+
+def test_training_curve_needs_a_run_folder(tmp_path: Path) -> None:
+    from branch_gym.training.curve import _running_mean, plot_training_curve
+
+    with pytest.raises(FileNotFoundError, match="no TensorBoard logs"):
+        plot_training_curve(tmp_path)
+    np.testing.assert_allclose(_running_mean(np.arange(4.0)), [0.0, 0.5, 1.0, 1.5])

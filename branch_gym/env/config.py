@@ -2,7 +2,8 @@
 
 ``gymnasium.make("BranchScan-v0", tracker="oracle", tree="hard", end_height_m=0.5)`` reaches
 :func:`env_config_from_kwargs`, which turns the keywords into an :class:`EnvConfig`. The
-shortcuts ``tracker``, ``segmenter``, ``tree``, ``end_height_m`` and ``speed_mps`` change the scan
+shortcuts ``tracker``, ``segmenter``, ``tree``, ``end_height_m``, ``speed_mps`` and
+``render_tracking_frames`` change the scan
 settings (``scan``, a :class:`branch_gym.scan.ScanConfig`); every other keyword is an
 :class:`EnvConfig` field.
 """
@@ -15,14 +16,26 @@ import numbers
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-from branch_gym.env.layout import ACTION_TYPES, DISCRETE_ANGLES_DEG, THETA_MAX_DEG
+from branch_gym.env.layout import (
+    ACTION_TYPES,
+    DISCRETE_ANGLES_DEG,
+    THETA_MAX_DEG,
+    TRIGGER_ANGLES_DEG,
+)
 from branch_gym.env.reward import RewardConfig
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.trees import TreeConfig, TreeGT
 
 TREE_PRESETS = ("paper", "cluttered", "hard")
 RESET_OPTIONS = ("tree",)
-SCAN_SHORTCUTS = ("tracker", "segmenter", "tree", "end_height_m", "speed_mps")
+SCAN_SHORTCUTS = (
+    "tracker",
+    "segmenter",
+    "tree",
+    "end_height_m",
+    "speed_mps",
+    "render_tracking_frames",
+)
 # Rotation of 180 deg or more about the branch would look at it from behind the tree's far side.
 _MAX_THETA_DEG = 90.0
 
@@ -74,12 +87,15 @@ class EnvConfig:
     """Everything a :class:`branch_gym.env.BranchScanEnv` is made of.
 
     Attributes:
-        action_type: "continuous" (a target angle in [-1, 1] x theta_max) or "discrete" (an
-            index into ``discrete_angles_deg``).
+        action_type: "continuous" (a target angle in [-1, 1] x theta_max), "discrete" (an
+            index into ``discrete_angles_deg``) or "trigger" (hold, or advance the paper's
+            rotation cycle with one of ``trigger_angles_deg``).
         theta_max_deg: Angle of the continuous action's bounds and the normaliser of angles in
             the observation (the paper's largest angle, Table I: 45 deg).
         discrete_angles_deg: Target angles of the discrete action (the paper's angles, Table I);
             within +-theta_max_deg (checked for discrete envs only).
+        trigger_angles_deg: Cycle angles of the trigger actions (the paper's angles, Table I);
+            positive, at most theta_max_deg (checked for trigger envs only).
         flatten: Return one flat float32 vector instead of the Dict (MLP-only libraries).
         info_timings: Put wall-clock stage timings in ``info["timings_ms"]`` (and the wall-clock
             columns in ``final_metrics``). Off by default: they are measurements, not simulation
@@ -93,6 +109,7 @@ class EnvConfig:
     action_type: str = "continuous"
     theta_max_deg: float = THETA_MAX_DEG
     discrete_angles_deg: tuple[float, ...] = DISCRETE_ANGLES_DEG
+    trigger_angles_deg: tuple[float, ...] = TRIGGER_ANGLES_DEG
     flatten: bool = False
     info_timings: bool = False
     observation: ObservationConfig = field(default_factory=ObservationConfig)
@@ -124,6 +141,21 @@ class EnvConfig:
                 f"got {self.discrete_angles_deg!r}"
             )
         object.__setattr__(self, "discrete_angles_deg", tuple(float(a) for a in angles))
+        try:
+            triggers = tuple(self.trigger_angles_deg)
+        except TypeError:
+            triggers = ()
+        # Only a trigger env's angles must lie within the normaliser's range.
+        limit = theta if self.action_type == "trigger" else math.inf
+        if not triggers or not all(
+            _is_number(a) and math.isfinite(a) and 0.0 < a <= limit for a in triggers
+        ):
+            raise ValueError(
+                "EnvConfig.trigger_angles_deg must be a non-empty sequence of positive angles "
+                f"(at most theta_max_deg={theta} for a trigger env), "
+                f"got {self.trigger_angles_deg!r}"
+            )
+        object.__setattr__(self, "trigger_angles_deg", tuple(float(a) for a in triggers))
         for name, kind in (
             ("flatten", bool),
             ("info_timings", bool),
@@ -180,6 +212,12 @@ def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
     for key in ("end_height_m", "speed_mps"):
         if key in shortcuts and not _is_number(shortcuts[key]):
             raise ValueError(f"{key} must be a number, got {shortcuts[key]!r}")
+    if "render_tracking_frames" in shortcuts and not isinstance(
+        shortcuts["render_tracking_frames"], bool
+    ):
+        raise ValueError(
+            f"render_tracking_frames must be a bool, got {shortcuts['render_tracking_frames']!r}"
+        )
     if shortcuts:
         scan = scan.replace(**shortcuts)  # ScanConfig names the offending field
     if isinstance(kwargs.get("reward"), dict):

@@ -14,12 +14,15 @@ from enum import IntEnum
 
 import numpy as np
 
-ACTION_TYPES = ("continuous", "discrete")
+ACTION_TYPES = ("continuous", "discrete", "trigger")
 # Largest rotation of the paper's experiments (Table I: 22.5 and 45 deg): the continuous action
 # [-1, 1] spans [-THETA_MAX_DEG, THETA_MAX_DEG].
 THETA_MAX_DEG = 45.0
 # The discrete action picks one of these target angles (deg): the paper's +-22.5, +-45 and 0.
 DISCRETE_ANGLES_DEG = (-45.0, -22.5, 0.0, 22.5, 45.0)
+# The trigger action holds the angle (0) or advances the paper's rotation cycle (+theta, 0,
+# -theta, 0; section V) by one move with one of these theta (deg): the paper's two angles.
+TRIGGER_ANGLES_DEG = (22.5, 45.0)
 
 
 class VectorField(IntEnum):

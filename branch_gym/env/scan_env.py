@@ -56,6 +56,10 @@ class BranchScanEnv(gym.Env):
                                   ``ValueError``.
     ``BranchScanDiscrete-v0``     ``Discrete(5)``: target angle -45, -22.5, 0, 22.5 or 45 deg.
                                   Non-integer or out-of-range indices raise ``ValueError``.
+    ``BranchScanTrigger-v0``      ``Discrete(3)``: 0 holds the angle; 1 / 2 advance the paper's
+                                  cycle (+theta, 0, -theta, 0) by one move with theta 22.5 /
+                                  45 deg (from a rotated view back to 0, from 0 to the side
+                                  opposite the last rotation). Bad indices raise ``ValueError``.
     ============================  ==============================================================
 
     ## Observation space
@@ -144,9 +148,10 @@ class BranchScanEnv(gym.Env):
     ``end_height_m``         scan end height (0.75 m); ``speed_mps``: scan speed (0.025 m/s)
     ``scan``                 a full :class:`branch_gym.scan.ScanConfig` (the shortcuts above
                              modify it)
-    ``action_type``          "continuous" or "discrete" (set by the id)
+    ``action_type``          "continuous", "discrete" or "trigger" (set by the id)
     ``theta_max_deg``        continuous action bound and angle normaliser (45)
     ``discrete_angles_deg``  discrete target angles ((-45, -22.5, 0, 22.5, 45))
+    ``trigger_angles_deg``   cycle angles of the trigger actions ((22.5, 45))
     ``flatten``              flat float32 observation (False)
     ``info_timings``         per-stage wall-clock timings in ``info`` (False: keeps infos
                              deterministic, as gymnasium's check_env requires)
@@ -176,7 +181,10 @@ class BranchScanEnv(gym.Env):
         self.config: EnvConfig = config
         self.render_mode = render_mode
         self._actions = ActionCodec(
-            config.action_type, config.theta_max_deg, config.discrete_angles_deg
+            config.action_type,
+            config.theta_max_deg,
+            config.discrete_angles_deg,
+            config.trigger_angles_deg,
         )
         self.action_space = self._actions.space
         self.observation_space = observation_space(config.observation, config.flatten)
@@ -198,6 +206,7 @@ class BranchScanEnv(gym.Env):
         start = time.perf_counter()
         self._session.reset(self._seed, tree)
         self._reward.reset()
+        self._actions.reset()
         self._last_report, self._previous_action, self._over = None, 0.0, False
         reset_ms = (time.perf_counter() - start) * 1e3
         metrics, metrics_ms = self._score()
@@ -214,7 +223,7 @@ class BranchScanEnv(gym.Env):
                 "BranchScanEnv.step() called after the episode ended (stop reason "
                 f"{self._session.stop_reason!r}): call reset() to start a new scan"
             )
-        angle_deg = self._actions.to_angle_deg(action)
+        angle_deg = self._actions.to_angle_deg(action, self._session.angle_deg)
         start = time.perf_counter()
         result = self._session.step(angle_deg)
         scan_ms = (time.perf_counter() - start) * 1e3

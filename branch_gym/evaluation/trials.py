@@ -150,6 +150,11 @@ def trial_path(out: Path, policy: str, seed: int) -> Path:
     return out / TRIALS_DIR / policy_slug(policy) / f"{seed}.json"
 
 
+# ScanConfig.render_tracking_frames (added with the fast oracle mode): True renders every frame,
+# as every scan did before it existed.
+HASH_NEUTRAL_DEFAULTS = {"render_tracking_frames": True}
+
+
 def config_to_dict(config: Any) -> dict:
     """A (possibly nested) config dataclass as a JSON-able dict."""
     if not is_dataclass(config):
@@ -158,8 +163,17 @@ def config_to_dict(config: Any) -> dict:
 
 
 def config_hash(config: Any) -> str:
-    """Short stable hash of a config dataclass: trials are comparable only under equal hashes."""
-    text = json.dumps(config_to_dict(config), sort_keys=True)
+    """Short stable hash of a config dataclass: trials are comparable only under equal hashes.
+
+    Top-level fields added after results were published (``HASH_NEUTRAL_DEFAULTS``) are left
+    out while they hold the value that reproduces the earlier behaviour, so that saved trials
+    stay valid.
+    """
+    data = config_to_dict(config)
+    for name, neutral in HASH_NEUTRAL_DEFAULTS.items():
+        if name in data and data[name] == neutral:
+            del data[name]
+    text = json.dumps(data, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 

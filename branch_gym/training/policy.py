@@ -17,7 +17,12 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from branch_gym.env.layout import IMAGE_KEY, VECTOR_KEY
+from branch_gym.env.layout import (
+    DISCRETE_ANGLES_DEG,
+    IMAGE_KEY,
+    TRIGGER_ANGLES_DEG,
+    VECTOR_KEY,
+)
 from branch_gym.training.paths import normalizer_path
 
 logger = logging.getLogger(__name__)
@@ -156,6 +161,25 @@ def check_ppo_spec(spec: str) -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"model file {path} of policy spec {spec!r} does not exist")
     return path
+
+
+def action_type_of(action_space: spaces.Space) -> str:
+    """The ``EnvConfig.action_type`` of the registered envs with this action space.
+
+    ``Box`` is "continuous"; ``Discrete(5)`` "discrete" (``DISCRETE_ANGLES_DEG``);
+    ``Discrete(3)`` "trigger" (hold + ``TRIGGER_ANGLES_DEG``).
+
+    Raises:
+        ValueError: a space no registered env has.
+    """
+    if isinstance(action_space, spaces.Box):
+        return "continuous"
+    if isinstance(action_space, spaces.Discrete):
+        if action_space.n == 1 + len(TRIGGER_ANGLES_DEG):
+            return "trigger"
+        if action_space.n == len(DISCRETE_ANGLES_DEG):
+            return "discrete"
+    raise ValueError(f"no BranchScan env acts in {action_space}")
 
 
 def _check_spaces(path: Path, model: Any, env: Any) -> bool:

@@ -25,6 +25,7 @@ from branch_gym.training.checkpoints import (
     write_json_atomic,
 )
 from branch_gym.training.config import RESUMABLE_CHANGES, TrainConfig
+from branch_gym.training.curve import plot_training_curve
 from branch_gym.training.envs import (
     make_eval_env,
     make_train_env,
@@ -128,6 +129,7 @@ def train(
             logger.info("%s already has %d >= %d steps", paths.out, start, config.timesteps)
         save_model(model, venv, paths.final_model)
         write_checkpoint(model, venv, paths, best_reward())
+        plot_training_curve(paths.out)
     finally:
         venv.close()
         if eval_env is not None:
@@ -200,9 +202,11 @@ def _check_run_folder(config: TrainConfig, paths: RunPaths, resume: bool) -> Any
 
 
 def _new_model(config: TrainConfig, venv: Any, paths: RunPaths) -> Any:
+    import torch
+    from gymnasium import spaces
     from stable_baselines3 import PPO
 
-    return PPO(
+    model = PPO(
         policy_class(venv.observation_space),
         venv,
         seed=config.seed,
@@ -211,6 +215,10 @@ def _new_model(config: TrainConfig, venv: Any, paths: RunPaths) -> Any:
         verbose=0,
         **config.ppo.sb3_kwargs(),
     )
+    if config.ppo.first_action_logit_init and isinstance(venv.action_space, spaces.Discrete):
+        with torch.no_grad():  # start preferring action 0 (hold / the first angle)
+            model.policy.action_net.bias[0] += config.ppo.first_action_logit_init
+    return model
 
 
 def _resume_seed(seed: int, num_timesteps: int) -> int:
