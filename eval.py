@@ -5,12 +5,16 @@ Usage::
     python eval.py --policies none periodic:22.5:1.5 periodic:45:1.5 periodic:22.5:2.5 \\
         periodic:45:2.5 --trees 60 --seed 0 --workers 2 --out results/NAME \\
         [--tracker lk|oracle] [--segmenter gt|noisy:mild|...] [--speed 0.025] \\
-        [--plot-trees 0 1 2] [--end-height 0.75]
+        [--plot-trees 0 1 2] [--end-height 0.75] [--backend pool|ray] [--address ADDR]
 
 Every policy scans the same trees (seeds SEED .. SEED+TREES-1). Each finished trial is saved at
 once under OUT/trials/, and re-running the same command resumes: saved trials are loaded, not
 re-run. OUT then holds summary.json, table.md, trials.csv, missed_vs_scan_time.png and one
 tree_SEED.png per plotted tree. See branch_gym/evaluation/ for the definitions.
+
+``--backend ray`` runs the trials as Ray tasks (``pip install .[ray]``): on a private local Ray
+instance of --workers CPUs, or on the cluster at --address; the results are the same as the
+default process pool's (docs/integrations/ray.md).
 """
 
 from __future__ import annotations
@@ -43,7 +47,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--trees", type=int, default=60, help="trees per policy (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="first tree seed (default 0)")
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        help="trials run at once: worker processes, or Ray tasks in flight (default 1)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("pool", "ray"),
+        default="pool",
+        help="pool: this process or a process pool (default); ray: Ray tasks (pip install .[ray])",
+    )
+    parser.add_argument(
+        "--address",
+        metavar="ADDR",
+        help="Ray cluster address (auto | HOST:PORT | ray://HOST:10001); with --backend ray; "
+        "default: a private local Ray instance",
+    )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--tracker", choices=("lk", "oracle"), help="point tracker")
     parser.add_argument("--segmenter", help="segmenter spec: gt | noisy:mild | ...")
@@ -67,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     from tqdm import tqdm
 
     from branch_gym.evaluation.pipeline import run_evaluation
+    from branch_gym.evaluation.ray_backend import RayUnavailableError, import_ray
     from branch_gym.evaluation.report import failure_reasons, format_comparison
     from branch_gym.evaluation.runner import ConfigMismatchError, EvalConfig
     from branch_gym.scan import ScanConfig
@@ -82,9 +104,23 @@ def main(argv: list[str] | None = None) -> int:
     }
     try:
         scan = ScanConfig().replace(**{k: v for k, v in changes.items() if v is not None})
-        config = EvalConfig(tuple(args.policies), args.trees, args.seed, args.workers, scan)
+        config = EvalConfig(
+            tuple(args.policies),
+            args.trees,
+            args.seed,
+            args.workers,
+            scan,
+            backend=args.backend,
+            address=args.address,
+        )
     except (ValueError, TypeError) as exc:
         parser.error(str(exc))
+    if config.backend == "ray":
+        try:
+            import_ray()  # before any output is written
+        except RayUnavailableError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
 
     bar = None
 
@@ -98,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         outcome = run_evaluation(config, args.out, args.plot_trees, on_start, on_done)
-    except (ConfigMismatchError, ValueError) as exc:
+    except (ConfigMismatchError, ValueError, ConnectionError) as exc:  # Connection: Ray address
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:

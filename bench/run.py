@@ -23,6 +23,7 @@ BENCHMARKS = [
     "bench.bench_scan",
     "bench.bench_env",
     "bench.bench_train",
+    "bench.bench_ray",
 ]
 DEFAULT_OUT = Path(__file__).with_name("results.json")
 

@@ -1,4 +1,4 @@
-"""Run every policy on the same trees, in a process pool, resuming from saved trials.
+"""Run every policy on the same trees, in a process pool or on Ray, resuming from saved trials.
 
 Each (policy, tree seed) pair is one trial: the policy's agent plays one episode of the Gymnasium
 environment (``branch_gym.evaluation.env_trial.run_scan_in_env``; the same numbers as
@@ -8,9 +8,10 @@ output folder loads the trials already there instead of re-running them, so an i
 evaluation loses at most the trials that were running. Trials are only comparable under one scan
 configuration: the folder records its configuration hash, and a run with another is refused.
 
-Results do not depend on the number of workers or on completion order: every trial is a pure
-function of (seed, policy, scan configuration), and records are returned sorted by policy (in the
-given order) then seed.
+Results do not depend on the number of workers, the backend (``"pool"``: this process or a
+process pool; ``"ray"``: Ray tasks, :mod:`branch_gym.evaluation.ray_backend`) or on completion
+order: every trial is a pure function of (seed, policy, scan configuration), and records are
+returned sorted by policy (in the given order) then seed.
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ logger = logging.getLogger(__name__)
 CONFIG_FILE = "config.json"
 PARENT_POLL_S = 1.0  # how often a worker checks that the evaluation process is alive
 TrialKey = tuple[str, int]  # (policy spec, tree seed)
+BACKENDS = ("pool", "ray")
 
 
 class ConfigMismatchError(RuntimeError):
@@ -61,8 +63,13 @@ class EvalConfig:
         policies: Rotation policy specs (``agents.rotation.make_policy``), in table order.
         trees: Number of trees (tree seeds) per policy.
         seed: First tree seed.
-        workers: Worker processes; 1 runs the trials in this process.
+        workers: Trials run at once: worker processes of the pool backend (1 runs the trials
+            in this process), Ray tasks in flight (and the CPUs of a local Ray instance).
         scan: Scan configuration shared by all trials.
+        backend: "pool" (this process or a process pool) or "ray" (Ray tasks; ``pip install
+            .[ray]``). Like ``workers``, it does not change the results.
+        address: Ray cluster address for ``ray.init`` ("auto", "HOST:PORT", "ray://HOST:PORT");
+            None starts a private local Ray instance. Ray backend only.
     """
 
     policies: tuple[str, ...]
@@ -70,6 +77,8 @@ class EvalConfig:
     seed: int = 0
     workers: int = 1
     scan: ScanConfig = field(default_factory=ScanConfig)
+    backend: str = "pool"
+    address: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "policies", tuple(self.policies))
@@ -80,6 +89,10 @@ class EvalConfig:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
         if self.workers < 1:
             raise ValueError(f"workers must be >= 1, got {self.workers}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
+        if self.address is not None and self.backend != "ray":
+            raise ValueError(f"a Ray address ({self.address!r}) needs the ray backend")
 
     @property
     def seeds(self) -> range:
@@ -96,7 +109,7 @@ class EvalConfig:
         return config_hash(self.scan)
 
     def to_json_dict(self) -> dict:
-        """What determines the results (the worker count does not)."""
+        """What determines the results (the worker count and the backend do not)."""
         return {
             "policies": list(self.policies),
             "trees": self.trees,
@@ -194,7 +207,7 @@ def run_trials(
     keys: Sequence[TrialKey],
     on_done: Callable[[TrialKey], None] | None = None,
 ) -> list[TrialKey]:
-    """Run and save the given trials (a process pool when ``config.workers > 1``).
+    """Run and save the given trials (a process pool when ``config.workers > 1``, or Ray tasks).
 
     Args:
         config: The evaluation.
@@ -207,8 +220,13 @@ def run_trials(
 
     Raises:
         RuntimeError: a trial raised; the trials already finished stay saved.
+        RayUnavailableError: the ray backend was chosen and Ray is not installed.
     """
     on_done = on_done or (lambda key: None)
+    if config.backend == "ray":
+        from branch_gym.evaluation.ray_backend import run_trials_ray  # Ray is optional
+
+        return run_trials_ray(config, out, keys, on_done)
     tasks = [_Task(policy, seed, config.scan, config.scan_hash, out) for policy, seed in keys]
     done: list[TrialKey] = []
     if config.workers == 1 or len(tasks) <= 1:
