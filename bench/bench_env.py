@@ -6,6 +6,8 @@ trees, ground-truth segmentation) with the no-rotation baseline, resets included
 modeling iteration: ~10 mm of travel, ~8 rendered frames, the pipeline, scoring and the
 observation. ``env_overhead_ms`` is the env's own share per step (scoring against ground truth +
 observation). Targets (issue "Gymnasium environment"): >= 15 and >= 50 steps/s.
+``env_steps_per_s_oracle_fast`` is the oracle's fast training mode (``render_tracking_frames=
+False``: only the frames an iteration runs on are rendered).
 """
 
 from __future__ import annotations
@@ -41,9 +43,9 @@ def _one_core():
             os.sched_setaffinity(0, affinity)
 
 
-def _steps_per_s(tracker: str) -> tuple[float, float]:
+def _steps_per_s(tracker: str, **kwargs: object) -> tuple[float, float]:
     """(env steps per second over whole episodes, median env overhead per step in ms)."""
-    env = gymnasium.make(branch_gym.ENV_ID, tracker=tracker, info_timings=True)
+    env = gymnasium.make(branch_gym.ENV_ID, tracker=tracker, info_timings=True, **kwargs)
     agent = NoRotationAgent()
     overhead_ms: list[float] = []
 
@@ -71,8 +73,10 @@ def run() -> dict[str, float]:
     with _one_core():
         lk, lk_overhead = _steps_per_s("lk")
         oracle, _ = _steps_per_s("oracle")
+        oracle_fast, _ = _steps_per_s("oracle", render_tracking_frames=False)
     return {
         "env_steps_per_s": lk,
         "env_steps_per_s_oracle": oracle,
+        "env_steps_per_s_oracle_fast": oracle_fast,
         "env_overhead_ms": lk_overhead,
     }

@@ -202,8 +202,6 @@ def _check_run_folder(config: TrainConfig, paths: RunPaths, resume: bool) -> Any
 
 
 def _new_model(config: TrainConfig, venv: Any, paths: RunPaths) -> Any:
-    import torch
-    from gymnasium import spaces
     from stable_baselines3 import PPO
 
     model = PPO(
@@ -215,10 +213,21 @@ def _new_model(config: TrainConfig, venv: Any, paths: RunPaths) -> Any:
         verbose=0,
         **config.ppo.sb3_kwargs(),
     )
-    if config.ppo.first_action_logit_init and isinstance(venv.action_space, spaces.Discrete):
-        with torch.no_grad():  # start preferring action 0 (hold / the first angle)
-            model.policy.action_net.bias[0] += config.ppo.first_action_logit_init
+    apply_first_action_logit(model, config.ppo.first_action_logit_init)
     return model
+
+
+def apply_first_action_logit(model: Any, bonus: float) -> None:
+    """Add ``bonus`` to the initial logit of discrete action 0 (hold): a policy that starts calm.
+
+    No effect on continuous action spaces or with ``bonus`` 0.
+    """
+    import torch
+    from gymnasium import spaces
+
+    if bonus and isinstance(model.action_space, spaces.Discrete):
+        with torch.no_grad():
+            model.policy.action_net.bias[0] += bonus
 
 
 def _resume_seed(seed: int, num_timesteps: int) -> int:
