@@ -63,6 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--gamma", type=float, help="PPO discount")
     parser.add_argument(
+        "--target-kl", type=float, help="PPO: stop an update's epochs past this KL divergence"
+    )
+    parser.add_argument(
         "--pose-only-tracking-frames",
         action="store_true",
         help="render only the frames modeling iterations run on (needs --tracker oracle; faster)",
@@ -83,6 +86,7 @@ def config_from_args(args: argparse.Namespace):  # -> TrainConfig (imported lazi
         "ent_coef": args.ent_coef,
         "first_action_logit_init": args.first_action_logit,
         "gamma": args.gamma,
+        "target_kl": args.target_kl,
     }
     run = {
         "tracker": args.tracker,

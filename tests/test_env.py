@@ -22,7 +22,9 @@ from agents.baselines import NoRotationAgent, PeriodicAgent
 from branch_gym.env import VECTOR_SIZE, BranchScanEnv, ImageChannel, VectorField, vector_part
 from branch_gym.env.config import ObservationConfig
 from branch_gym.env.observation import PipelineState, draw_state, make_observation
+from branch_gym.env.overlay import draw_polyline
 from branch_gym.env.reward import RewardConfig, RewardTracker
+from branch_gym.scan import ScanConfig
 from branch_gym.sim.trees import TreeConfig
 from recon.camera import CameraIntrinsics
 from recon.curve2d import fit_mask_curves
@@ -127,6 +129,22 @@ def test_step_limit_truncates_and_reset_observation_is_empty() -> None:
     _, _, terminated, truncated, info = env.step(np.zeros(1, np.float32))
     assert truncated and not terminated
     assert info["metrics"]["n_gt"] == 0 and "final_metrics" not in info
+    env.close()
+
+
+def test_scan_time_limit_terminates_as_a_failure_and_is_observed() -> None:
+    # 1 s of scan time at 2.5 cm/s is ~25 mm of travel: the limit comes before the 0.32 m end.
+    scan = ScanConfig(tracker="oracle", end_height_m=0.32, max_scan_time_s=1.0)
+    env = BranchScanEnv(scan=scan)
+    observations, _, info = _run(env, 3, [np.zeros(1, np.float32)])
+    assert info["stop_reason"] == "timeout" and info["failure"] == "timeout"
+    assert info["reward_terms"]["failure"] == -env.config.reward.failure_penalty
+    assert "final_metrics" in info
+    times = [float(obs["vector"][VectorField.SCAN_TIME]) for obs in observations]
+    assert times[0] == 0.0 and times[-1] == 1.0 and times == sorted(times)
+    assert 0.0 < times[1] < 1.0  # the time left is seen before the limit, not only at it
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(1, np.float32))
     env.close()
 
 
@@ -325,7 +343,7 @@ def _synthetic_state(model_secondaries: int) -> PipelineState:
         BranchModel(primary.points, primary.radii),
         [BranchModel(s.points, s.radii) for s in sides[:model_secondaries]],
     )
-    return PipelineState(T, intrinsics, model, curves, Outcome.RESTART, 0.5, 0.25, 0.4, -1.0)
+    return PipelineState(T, intrinsics, model, curves, Outcome.RESTART, 0.5, 0.25, 0.4, -1.0, 0.3)
 
 
 def test_observation_shows_what_the_model_does_not_explain() -> None:
@@ -342,6 +360,7 @@ def test_observation_shows_what_the_model_does_not_explain() -> None:
     assert vector[VectorField.CANDIDATES_2D] == pytest.approx(0.2)
     assert vector[VectorField.UNCONFIRMED_CANDIDATES] == pytest.approx(0.1)
     assert vector[VectorField.PREVIOUS_ACTION] == -1.0
+    assert vector[VectorField.SCAN_TIME] == pytest.approx(0.3)
     # The unconfirmed candidate is the one on the left (yaw 180 deg): drawn from the primary's
     # axis (image centre) leftwards, in its channel only.
     columns = np.nonzero(image[ImageChannel.UNCONFIRMED].any(axis=0))[0]
@@ -355,6 +374,18 @@ def test_observation_shows_what_the_model_does_not_explain() -> None:
     )
     assert obs_all["vector"][VectorField.UNCONFIRMED_CANDIDATES] == 0.0
     assert not obs_all["image"][ImageChannel.UNCONFIRMED].any()
+
+
+def test_a_branch_just_in_front_of_the_lens_is_drawn_covering_the_canvas() -> None:
+    # Projected radii explode as depth goes to 0 (seen with noisy masks): the line is clipped to
+    # the canvas, not refused by OpenCV (which accepts widths up to 32767 px).
+    canvas = np.zeros((60, 80), np.uint8)
+    pixels = np.array([[10.0, 10.0], [70.0, 50.0]])
+    draw_polyline(canvas, pixels, np.array([1e6, 1e7]), 255)
+    assert canvas.all()
+    thin = np.zeros((60, 80), np.uint8)
+    draw_polyline(thin, pixels, np.array([0.5, 0.5]), 255)
+    assert 0 < np.count_nonzero(thin) < 0.1 * thin.size
 
 
 def test_render_rgb_array_overlays_the_pipeline_state() -> None:

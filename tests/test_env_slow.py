@@ -12,6 +12,7 @@ import pytest
 import branch_gym
 from agents.baselines import PeriodicAgent
 from branch_gym.env import BranchScanEnv
+from branch_gym.env.layout import VECTOR_SIZE
 from branch_gym.scan import ScanConfig, run_scan
 
 # Metrics compared between a plain scan and an env episode (all of TreeMetrics.to_dict's counts
@@ -80,7 +81,7 @@ def test_async_vector_env_runs_with_autoreset_and_a_batched_agent() -> None:
         actions, _ = agent.predict(obs, episode_start=starts)
         assert actions.shape == (n_envs, 1)
         obs, rewards, terminated, truncated, info = envs.step(actions)
-        assert obs["vector"].shape == (n_envs, 11) and np.all(np.isfinite(rewards))
+        assert obs["vector"].shape == (n_envs, VECTOR_SIZE) and np.all(np.isfinite(rewards))
         starts = terminated | truncated  # the next step autoresets these envs
         episodes += starts
         if "final_metrics" in info:

@@ -109,7 +109,10 @@ def test_config_validation_names_the_field() -> None:
             TrainConfig(**kwargs)
     with pytest.raises(ValueError, match="gamma"):
         PPOConfig(gamma=1.5)
-    config = TrainConfig(n_envs=2, end_height_m=0.5, ppo=PPOConfig(n_steps=64))
+    with pytest.raises(ValueError, match="target_kl"):
+        PPOConfig(target_kl=0.0)
+    assert PPOConfig(target_kl=0.02).sb3_kwargs()["target_kl"] == 0.02
+    config = TrainConfig(n_envs=2, end_height_m=0.5, ppo=PPOConfig(n_steps=64, target_kl=0.02))
     assert TrainConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
     assert config.resume_conflicts(config) == []
     longer = TrainConfig.from_dict({**config.to_dict(), "timesteps": 10**6})

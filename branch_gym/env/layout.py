@@ -39,6 +39,7 @@ class VectorField(IntEnum):
     CANDIDATES_2D = 8  # 2D side-branch candidates in the latest mask / count_scale
     UNCONFIRMED_CANDIDATES = 9  # ... not explained by a projected 3D secondary / count_scale
     PREVIOUS_ACTION = 10  # previous target angle / theta_max, in [-1, 1] (0 after reset)
+    SCAN_TIME = 11  # scan time so far / the scan-time limit, in [0, 1]
 
 
 VECTOR_SIZE = len(VectorField)

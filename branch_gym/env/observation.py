@@ -54,6 +54,7 @@ class PipelineState:
         travel_fov: Vertical travel since the last rotation, in vertical FoVs.
         progress: Fraction of the scan height range covered, in [0, 1].
         previous_action: Previous target angle / theta_max, in [-1, 1].
+        scan_time_fraction: Scan time so far / the scan-time limit, in [0, 1].
     """
 
     T_world_camera: np.ndarray
@@ -65,6 +66,7 @@ class PipelineState:
     travel_fov: float
     progress: float
     previous_action: float
+    scan_time_fraction: float
 
 
 @dataclass(frozen=True)
@@ -114,6 +116,7 @@ def pipeline_state(
         travel_fov=session.travel_since_rotation_m / session.vertical_fov_m,
         progress=session.progress,
         previous_action=previous_action,
+        scan_time_fraction=session.scan_time_s / session.config.max_scan_time_s,
     )
 
 
@@ -187,6 +190,7 @@ def make_observation(
     for index, count in counts.items():
         vector[index] = min(count / config.count_scale, 1.0)
     vector[VectorField.PREVIOUS_ACTION] = np.clip(state.previous_action, -1.0, 1.0)
+    vector[VectorField.SCAN_TIME] = np.clip(state.scan_time_fraction, 0.0, 1.0)
     if flatten:
         return np.concatenate([vector, image.reshape(-1).astype(np.float32) / _FULL])
     return {IMAGE_KEY: image, VECTOR_KEY: vector}

@@ -86,11 +86,14 @@ def draw_polyline(
         )
     fixed = np.rint(np.clip(np.nan_to_num(pixels), -_COORD_LIMIT_PX, _COORD_LIMIT_PX) * _SCALE)
     fixed = fixed.astype(np.int64)
+    # A branch point just in front of the lens projects with a huge radius: no line needs to be
+    # wider than twice the canvas diagonal to cover it (OpenCV refuses widths above 32767).
+    max_thickness = int(2 * np.hypot(*canvas.shape[:2])) + 1
     for i in range(len(pixels) - 1):
         if not (ok[i] and ok[i + 1]):
             continue
         half = 0.5 * (radii_px[i] + radii_px[i + 1]) + extra_halfwidth_px
-        thickness = max(1, round(2.0 * half))
+        thickness = int(np.clip(np.rint(2.0 * half), 1, max_thickness))
         start = (int(fixed[i, 0]), int(fixed[i, 1]))
         end = (int(fixed[i + 1, 0]), int(fixed[i + 1, 1]))
         cv2.line(canvas, start, end, colour, thickness, cv2.LINE_8, _SHIFT)

@@ -30,8 +30,6 @@ logger = logging.getLogger(__name__)
 
 # Video frame rate (our choice): a step is ~0.4 s of scan time, so 10 fps plays ~4x real time.
 RENDER_FPS = 10
-# ScanSession stop reason that is a time limit (truncation), not a terminal state.
-TIMEOUT = "timeout"
 # Episode seeds drawn from the env's generator when reset() gets none: [0, 2**31 - 1).
 _SEED_BOUND = 2**31 - 1
 
@@ -64,8 +62,8 @@ class BranchScanEnv(gym.Env):
 
     ## Observation space
 
-    ``Dict(image=Box(0, 255, (3, 60, 80), uint8), vector=Box(low, high, (11,), float32))``; with
-    ``flatten=True`` (or ``BranchScanFlat-v0``) one ``Box`` of 11 + 14400 float32: the vector,
+    ``Dict(image=Box(0, 255, (3, 60, 80), uint8), vector=Box(low, high, (12,), float32))``; with
+    ``flatten=True`` (or ``BranchScanFlat-v0``) one ``Box`` of 12 + 14400 float32: the vector,
     then the image / 255 (channel-first order). Only what the pipeline knows, no ground truth.
     Names: :class:`branch_gym.env.layout.ImageChannel`, :class:`~branch_gym.env.layout.VectorField`.
 
@@ -94,6 +92,7 @@ class BranchScanEnv(gym.Env):
     9       ``UNCONFIRMED_CANDIDATES``     ... not explained by the 3D model / 10        [0, 1]
     10      ``PREVIOUS_ACTION``            previous target angle / theta_max (0 after    [-1, 1]
                                            reset)
+    11      ``SCAN_TIME``                  scan time so far / the scan-time limit        [0, 1]
     ======  =============================  ============================================  =======
 
     ## Rewards (ground truth, simulation only; :class:`branch_gym.env.reward.RewardConfig`)
@@ -105,7 +104,8 @@ class BranchScanEnv(gym.Env):
     ``spurious``       -0.5        spurious model branch added (+0.5 when one is pruned)
     ``duplicates``     -0.5        duplicate of a matched branch added (+0.5 when merged)
     ``time``           -0.01       second of scan time (following and rotating)
-    ``failure``        -1.0        once, when the scan fails (terminated with a failure reason)
+    ``failure``        -1.0        once, when the scan fails (terminated with a failure reason,
+                                   the scan-time limit included)
     =================  ==========  ==============================================================
 
     Scoring is :func:`recon.metrics.evaluate` up to the height scanned so far, after every step;
@@ -114,13 +114,16 @@ class BranchScanEnv(gym.Env):
     ## Episode end
 
     - ``terminated``: the camera reached ``end_height_m`` (0.75 m) or the scan failed
-      (``singularity``, ``joint_limit``, ``joint_speed``, ``collision``, ``lost_branch``:
-      ``info["failure"]``).
-    - ``truncated``: the simulated scan time limit (``ScanConfig.max_scan_time_s``, 100 s;
-      ``info["stop_reason"] == "timeout"``), or the step limit of the registered ids
-      (``max_episode_steps=200``, gymnasium's ``TimeLimit``; ``gymnasium.make(...,
-      max_episode_steps=N)`` changes it). Stepping a terminated or scan-time-truncated episode
-      raises ``RuntimeError``: call ``reset()``.
+      (``singularity``, ``joint_limit``, ``joint_speed``, ``collision``, ``lost_branch``, or
+      ``timeout``: the simulated scan-time limit ``ScanConfig.max_scan_time_s``, 100 s;
+      ``info["failure"]``). The scan-time limit is part of the task, not a truncation: a scan
+      that runs out of time ends there with the failure penalty, the branches above never found
+      (the observation's ``SCAN_TIME`` tells the policy how much time is left). Treating it as a
+      truncation let a learner bootstrap the value of branches it would never reach, and PPO
+      learned to rotate until it timed out (README, "Learned rotation policies").
+    - ``truncated``: the step limit of the registered ids (``max_episode_steps=200``,
+      gymnasium's ``TimeLimit``; ``gymnasium.make(..., max_episode_steps=N)`` changes it).
+      Stepping a terminated episode raises ``RuntimeError``: call ``reset()``.
 
     ## Info
 
@@ -130,8 +133,8 @@ class BranchScanEnv(gym.Env):
     ``angle_deg``, ``camera_height_m``, ``progress``, ``outcome`` (latest iteration, "" before the
     first), ``iterations`` (this step), ``n_iterations``, ``rotated``, and with ``info_timings``
     ``timings_ms`` (modeler stages summed over the step's iterations, ``scan_step_ms``,
-    ``metrics_ms``, ``observation_ms``, ``env_step_ms``). When the scan ends (terminated, or
-    truncated by scan time): ``final_metrics``, the :meth:`branch_gym.scan.ScanResult.to_row` of
+    ``metrics_ms``, ``observation_ms``, ``env_step_ms``). When the scan ends (terminated):
+    ``final_metrics``, the :meth:`branch_gym.scan.ScanResult.to_row` of
     the scan. After a ``TimeLimit`` truncation ``metrics`` is the final score.
 
     ## Arguments
@@ -231,8 +234,7 @@ class BranchScanEnv(gym.Env):
         if result.reports:
             self._last_report = result.reports[-1]
         session = self._session
-        truncated = session.done and session.stop_reason == TIMEOUT
-        terminated = session.done and not truncated
+        terminated, truncated = session.done, False
         metrics, metrics_ms = self._score()
         failed = terminated and session.failure is not None
         reward, terms = self._reward.step(metrics, session.scan_time_s, failed)

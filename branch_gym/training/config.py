@@ -35,6 +35,10 @@ class PPOConfig:
         ent_coef: Entropy bonus (SB3 default 0.0).
         vf_coef: Value loss weight (SB3 default 0.5).
         max_grad_norm: Gradient clipping (SB3 default 0.5).
+        target_kl: Stop an update's epochs early once the approximate KL divergence from the
+            rollout's policy exceeds 1.5x this (SB3 default None: no limit). Our trigger runs
+            without it took KL steps of 0.1 (clip fraction 0.4) and drifted into rotating until
+            the scan-time limit; 0.02 keeps each update small.
         log_std_init: Initial log std of the continuous action (SB3 default 0.0: std 1, i.e.
             +-45 deg, clipped, so nearly every exploration step is a long rotation costing ~1 s
             of wall time; -1.0 (std 0.37) explores ~+-17 deg and trains faster). Unused by
@@ -56,6 +60,7 @@ class PPOConfig:
     ent_coef: float = 0.0
     vf_coef: float = 0.5
     max_grad_norm: float = 0.5
+    target_kl: float | None = None
     log_std_init: float = 0.0
     first_action_logit_init: float = 0.0
 
@@ -66,6 +71,8 @@ class PPOConfig:
             _require_number(f"PPOConfig.{name}", getattr(self, name), positive=True)
         for name in ("ent_coef", "vf_coef"):
             _require_number(f"PPOConfig.{name}", getattr(self, name), positive=False)
+        if self.target_kl is not None:
+            _require_number("PPOConfig.target_kl", self.target_kl, positive=True)
         for name in ("gamma", "gae_lambda"):
             value = getattr(self, name)
             if not (_is_number(value) and 0.0 < value <= 1.0):
