@@ -317,6 +317,20 @@ def test_output_folder_of_another_config_is_refused(tmp_path: Path) -> None:
     assert "controller.k_u: 1.0 -> 2.0, tracker: 'lk' -> 'oracle')" in str(error.value)
 
 
+def test_trials_of_a_model_file_changed_in_place_are_refused(tmp_path: Path) -> None:
+    # Retraining into the same models/NAME.zip must not reuse the old model's saved trials.
+    model = tmp_path / "model.zip"
+    model.write_bytes(b"first model")
+    config = EvalConfig(("none", f"ppo:{model}"), trees=1)
+    out = tmp_path / "out"
+    check_output_folder(config, out)
+    check_output_folder(config, out)  # unchanged: fine
+    model.write_bytes(b"retrained model")
+    with pytest.raises(ConfigMismatchError, match=r"another model file.*delete .*ppo_"):
+        check_output_folder(config, out)
+    check_output_folder(EvalConfig(("none",), trees=1), out)  # other policies are unaffected
+
+
 def test_trial_file_of_another_config_is_refused(tmp_path: Path) -> None:
     config = EvalConfig(("none",), trees=2)
     for seed in (0, 1):

@@ -65,7 +65,8 @@ def run_evaluation(
 
     Raises:
         ValueError: a seed to plot is not among the evaluated ones.
-        ConfigMismatchError: ``out`` holds trials of another scan configuration.
+        ConfigMismatchError: ``out`` holds trials of another scan configuration, or of a
+            ``ppo:PATH`` model file that has changed since.
     """
     plot_seeds = default_plot_seeds(config) if plot_seeds is None else list(plot_seeds)
     outside = [s for s in plot_seeds if s not in config.seeds]

@@ -17,6 +17,7 @@ returned sorted by policy (in the given order) then seed.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import hashlib
 import json
 import logging
 import multiprocessing
@@ -42,10 +43,14 @@ from branch_gym.evaluation.trials import (
     write_json_atomic,
 )
 from branch_gym.scan import ScanConfig
+from branch_gym.training.paths import normalizer_path
+from branch_gym.training.policy import PPO_SPEC_PREFIX, check_ppo_spec
 
 logger = logging.getLogger(__name__)
 
 CONFIG_FILE = "config.json"
+# Digest of a learned policy's files, next to its trials (trials/<policy>/model.json).
+MODEL_FILE = "model.json"
 PARENT_POLL_S = 1.0  # how often a worker checks that the evaluation process is alive
 TrialKey = tuple[str, int]  # (policy spec, tree seed)
 BACKENDS = ("pool", "ray")
@@ -122,9 +127,7 @@ class EvalConfig:
 
 def _check_spec(policy: str) -> None:
     """Raise a ValueError naming the valid forms unless ``policy`` is a known spec."""
-    if policy.startswith("ppo:"):
-        from branch_gym.training.policy import check_ppo_spec
-
+    if policy.startswith(PPO_SPEC_PREFIX):
         try:
             check_ppo_spec(policy)  # the model file must exist; it is loaded by the trial
         except FileNotFoundError as exc:
@@ -159,10 +162,12 @@ def validate_policies(policies: Sequence[str]) -> None:
 
 
 def check_output_folder(config: EvalConfig, out: Path) -> None:
-    """Record the scan configuration in ``out``, or refuse a folder made under another one.
+    """Record the scan configuration and the learned policies' files in ``out``, or refuse a
+    folder made under another configuration or with other model files at the same paths.
 
     Raises:
-        ConfigMismatchError: ``out`` holds trials of a different scan configuration.
+        ConfigMismatchError: ``out`` holds trials of a different scan configuration, or trials of
+            a ``ppo:PATH`` policy whose model file has changed since (e.g. retrained in place).
     """
     path = out / TRIALS_DIR / CONFIG_FILE
     ours = {"scan_config_hash": config.scan_hash, "scan": config_to_dict(config.scan)}
@@ -170,8 +175,31 @@ def check_output_folder(config: EvalConfig, out: Path) -> None:
         theirs = json.loads(path.read_text())
         if theirs.get("scan_config_hash") != ours["scan_config_hash"]:
             raise ConfigMismatchError(_mismatch_message(out, theirs, ours))
+    else:
+        write_json_atomic(path, ours)
+    for policy in config.policies:
+        if policy.startswith(PPO_SPEC_PREFIX):
+            _check_model_file(policy, out)
+
+
+def _check_model_file(policy: str, out: Path) -> None:
+    """Record the digest of a ``ppo:PATH`` policy's files next to its trials, or refuse a change."""
+    model = check_ppo_spec(policy)
+    digest = hashlib.sha256(model.read_bytes())
+    if normalizer_path(model).is_file():
+        digest.update(normalizer_path(model).read_bytes())
+    ours = {"model": str(model), "sha256": digest.hexdigest()}
+    record = trial_path(out, policy, 0).parent / MODEL_FILE
+    if not record.exists():
+        write_json_atomic(record, ours)
         return
-    write_json_atomic(path, ours)
+    theirs = json.loads(record.read_text())
+    if theirs.get("sha256") != ours["sha256"]:
+        raise ConfigMismatchError(
+            f"{out} holds trials of {policy!r} made with another model file than {model} holds "
+            f"now (sha256 {str(theirs.get('sha256'))[:12]} there, {ours['sha256'][:12]} now): "
+            f"delete {record.parent} to re-run them, or use another --out."
+        )
 
 
 def _mismatch_message(out: Path, theirs: dict, ours: dict) -> str:
