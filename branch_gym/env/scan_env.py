@@ -119,8 +119,8 @@ class BranchScanEnv(gym.Env):
       ``info["failure"]``). The scan-time limit is part of the task, not a truncation: a scan
       that runs out of time ends there with the failure penalty, the branches above never found
       (the observation's ``SCAN_TIME`` tells the policy how much time is left). Treating it as a
-      truncation let a learner bootstrap the value of branches it would never reach, and PPO
-      learned to rotate until it timed out (README, "Learned rotation policies").
+      truncation let a learner bootstrap the value of branches it would never reach (README,
+      "Learned rotation policies").
     - ``truncated``: the step limit of the registered ids (``max_episode_steps=200``,
       gymnasium's ``TimeLimit``; ``gymnasium.make(..., max_episode_steps=N)`` changes it).
       Stepping a terminated episode raises ``RuntimeError``: call ``reset()``.
