@@ -189,7 +189,7 @@ def _check_model_file(policy: str, out: Path) -> None:
     if normalizer_path(model).is_file():
         digest.update(normalizer_path(model).read_bytes())
     ours = {"model": str(model), "sha256": digest.hexdigest()}
-    record = trial_path(out, policy, 0).parent / MODEL_FILE
+    record = out / TRIALS_DIR / policy_slug(policy) / MODEL_FILE
     if not record.exists():
         write_json_atomic(record, ours)
         return
