@@ -63,6 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--gamma", type=float, help="PPO discount")
     parser.add_argument(
+        "--time-penalty", type=float, metavar="PER_S", help="reward per second of scan time"
+    )
+    parser.add_argument(
         "--target-kl", type=float, help="PPO: stop an update's epochs past this KL divergence"
     )
     parser.add_argument(
@@ -97,6 +100,7 @@ def config_from_args(args: argparse.Namespace):  # -> TrainConfig (imported lazi
         "checkpoint_every": args.checkpoint_every,
         "eval_every": args.eval_every,
         "eval_trees": args.eval_trees,
+        "time_penalty_per_s": args.time_penalty,
     }
     return TrainConfig(
         env_id=args.env,

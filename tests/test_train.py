@@ -111,6 +111,12 @@ def test_config_validation_names_the_field() -> None:
         PPOConfig(gamma=1.5)
     with pytest.raises(ValueError, match="target_kl"):
         PPOConfig(target_kl=0.0)
+    with pytest.raises(ValueError, match="time_penalty_per_s"):
+        TrainConfig(time_penalty_per_s=-0.01)
+    cheap_time = TrainConfig(time_penalty_per_s=0.002)
+    assert cheap_time.env_kwargs()["reward"].time_penalty_per_s == 0.002
+    assert "reward" not in TrainConfig().env_kwargs()
+    assert TrainConfig.from_dict(json.loads(json.dumps(cheap_time.to_dict()))) == cheap_time
     assert PPOConfig(target_kl=0.02).sb3_kwargs()["target_kl"] == 0.02
     config = TrainConfig(n_envs=2, end_height_m=0.5, ppo=PPOConfig(n_steps=64, target_kl=0.02))
     assert TrainConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config

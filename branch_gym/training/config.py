@@ -115,6 +115,9 @@ class TrainConfig:
         eval_every: Evaluate on the held-out trees every this many steps; 0 never (our
             choice: as often as the checkpoints).
         eval_trees: Held-out trees per evaluation (our choice: 10, ~1 min with LK tracking).
+        time_penalty_per_s: Reward per second of scan time
+            (:class:`branch_gym.env.reward.RewardConfig`); None keeps the env's 0.01, which
+            values a found branch at 100 s of scan time.
         normalize: Wrap the training envs in ``VecNormalize`` (running mean/std of the
             observation vector and of the return). Our choice: off, the observation is
             already scaled to about [0, 1] and the rewards are O(1).
@@ -134,6 +137,7 @@ class TrainConfig:
     checkpoint_every: int = 10_000
     eval_every: int = 10_000
     eval_trees: int = 10
+    time_penalty_per_s: float | None = None
     normalize: bool = False
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
@@ -177,6 +181,10 @@ class TrainConfig:
                 kwargs[name] = getattr(self, name)
         if not self.render_tracking_frames:
             kwargs["render_tracking_frames"] = False
+        if self.time_penalty_per_s is not None:
+            from branch_gym.env.reward import RewardConfig
+
+            kwargs["reward"] = RewardConfig(time_penalty_per_s=self.time_penalty_per_s)
         return kwargs
 
     def to_dict(self) -> dict[str, Any]:
