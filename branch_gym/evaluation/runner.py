@@ -186,8 +186,9 @@ def _check_model_file(policy: str, out: Path) -> None:
     """Record the digest of a ``ppo:PATH`` policy's files next to its trials, or refuse a change."""
     model = check_ppo_spec(policy)
     digest = hashlib.sha256(model.read_bytes())
-    if normalizer_path(model).is_file():
-        digest.update(normalizer_path(model).read_bytes())
+    stats = normalizer_path(model)
+    if stats.is_file():
+        digest.update(stats.read_bytes())
     ours = {"model": str(model), "sha256": digest.hexdigest()}
     record = out / TRIALS_DIR / policy_slug(policy) / MODEL_FILE
     if not record.exists():

@@ -115,7 +115,7 @@ class TrainConfig:
         eval_every: Evaluate on the held-out trees every this many steps; 0 never (our
             choice: as often as the checkpoints).
         eval_trees: Held-out trees per evaluation (our choice: 10, ~1 min with LK tracking).
-        time_penalty_per_s: Reward per second of scan time
+        time_penalty_per_s: Penalty per second of scan time
             (:class:`branch_gym.env.reward.RewardConfig`); None keeps the env's 0.01, which
             values a found branch at 100 s of scan time.
         normalize: Wrap the training envs in ``VecNormalize`` (running mean/std of the
