@@ -17,7 +17,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from branch_gym.sim.home import SCAN_END_HEIGHT_M
+from branch_gym.sim.robot.home import SCAN_END_HEIGHT_M
 from branch_gym.sim.segmentation import GroundTruthSegmenter
 from branch_gym.sim.world import World
 from recon.camera import CameraIntrinsics

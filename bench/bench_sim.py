@@ -19,9 +19,12 @@ import time
 import cv2
 import numpy as np
 
-from branch_gym.sim.home import SCAN_END_HEIGHT_M
-from branch_gym.sim.scene import BackgroundConfig, SceneConfig
-from branch_gym.sim.trees import TreeConfig, TreeGT, generate_tree
+from branch_gym.sim.robot.home import SCAN_END_HEIGHT_M
+from branch_gym.sim.scene.background import BackgroundConfig
+from branch_gym.sim.scene.tree_scene import SceneConfig
+from branch_gym.sim.tree.config import TreeConfig
+from branch_gym.sim.tree.generator import generate_tree
+from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.world import World, WorldConfig
 
 RENDER_SEEDS = (0, 1, 2)  # paper-default trees scanned for the render figures

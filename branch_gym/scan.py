@@ -13,14 +13,15 @@ import logging
 import math
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from branch_gym.control import FollowControllerConfig, PrimaryBranchController
-from branch_gym.sim.camera import CameraSpec
+from branch_gym.sim.scene.camera_spec import CameraSpec
 from branch_gym.sim.segmentation import make_segmenter
-from branch_gym.sim.trees import TreeGT
+from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.world import World, WorldConfig
 from recon.camera import CameraIntrinsics
 from recon.config import ModelerConfig
@@ -139,6 +140,8 @@ class ScanSession:
         self.controller = PrimaryBranchController(controller_config, self.intrinsics)
         self.vertical_fov_m = self.intrinsics.vertical_fov_length_m(controller_config.z_target_m)
         self.tree: TreeGT | None = None
+        # Called with every frame handed to the modeler, pose-only ones included (recording).
+        self.frame_listeners: list[Callable[[Frame], None]] = []
 
     # ------------------------------------------------------------------ lifecycle
     def reset(self, seed: int, tree: TreeGT | None = None) -> TreeGT:
@@ -205,7 +208,7 @@ class ScanSession:
 
     def _rotate_to(self, target_angle_deg: float) -> None:
         """Orbit the camera about the world-vertical axis through the followed branch point."""
-        from branch_gym.sim.robot import orbit_camera_twist
+        from branch_gym.sim.robot.motion import orbit_camera_twist
 
         T = self.world.T_world_camera
         found = self.controller.look_at_point(self.model.primary, T)
@@ -253,12 +256,12 @@ class ScanSession:
         if not self.modeler.wants_frame(T):
             return
         if not self.config.render_tracking_frames and not self.modeler.iteration_due(T):
-            self.modeler.update(Frame.pose_only(T, self.intrinsics, self.scan_time_s))
+            self._feed(Frame.pose_only(T, self.intrinsics, self.scan_time_s))
             return
         images = self.world.render()
         mask = self.segmenter.segment(images.rgb, images.labels, self._segment_rng)
         frame = Frame(images.rgb, mask, T, self.intrinsics, self.scan_time_s, images.depth_m)
-        report = self.modeler.update(frame)
+        report = self._feed(frame)
         if report is None:
             return
         self.reports.append(report)
@@ -268,6 +271,11 @@ class ScanSession:
             self._non_consistent_streak += 1
             if self._non_consistent_streak >= self.config.lost_branch_iterations:
                 self._stop("lost_branch")
+
+    def _feed(self, frame: Frame) -> IterationReport | None:
+        for listener in self.frame_listeners:
+            listener(frame)
+        return self.modeler.update(frame)
 
     def _stop(self, reason: str) -> None:
         self.done = True

@@ -3,13 +3,13 @@
 Feed every frame to :meth:`Modeler.update`. The modeler stores a tracking frame every ~1 mm of
 camera motion and runs one iteration every 10 mm:
 
-1. fit 2D curves to the newest mask (:mod:`recon.curve2d`);
+1. fit 2D curves to the newest mask (:mod:`recon.curve2d.fit`);
 2. check the 3D primary against them: Consistent, Inconsistent (skip the frame) or, on the 3rd
    Inconsistent in a row, Restart (delete the model seen in the last three frames);
-3. lift the 2D samples to 3D (:mod:`recon.lifting`) and refit the visible primary (RANSAC cubic
-   Bezier, :mod:`recon.primary`);
+3. lift the 2D samples to 3D (:mod:`recon.model3d.lifting`) and refit the visible primary
+   (RANSAC cubic Bezier, :mod:`recon.model3d.primary`);
 4. lift the secondary candidates, keep those connected to the primary, merge re-detections and
-   prune branches the masks stop supporting (:mod:`recon.secondary`).
+   prune branches the masks stop supporting (:mod:`recon.model3d.secondary`).
 """
 
 from __future__ import annotations
@@ -24,12 +24,14 @@ import numpy as np
 
 from recon.camera import project_points
 from recon.config import ModelerConfig
-from recon.curve2d import Curve2DConfig, MaskCurves, PrimaryPrior, fit_mask_curves
+from recon.curve2d.fit import fit_mask_curves
+from recon.curve2d.primary import PrimaryPrior
+from recon.curve2d.types import Curve2DConfig, MaskCurves
 from recon.frame import Frame
-from recon.lifting import lift_pixels
 from recon.model import TreeModel
-from recon.primary import fit_visible_segment, project_model, splice
-from recon.secondary import SecondaryBranches, SecondaryDetection
+from recon.model3d.lifting import lift_pixels
+from recon.model3d.primary import fit_visible_segment, project_model, splice
+from recon.model3d.secondary import SecondaryBranches, SecondaryDetection
 from recon.tracking import PointTracker
 
 logger = logging.getLogger(__name__)

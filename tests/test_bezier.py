@@ -1,17 +1,12 @@
-"""Tests for recon.bezier: evaluation, fitting, closest points, arc length and RANSAC."""
+"""Tests for recon.geometry (bezier, bezier_fit): evaluation, fitting, closest points, RANSAC."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from recon.bezier import (
-    CubicBezier,
-    RansacFit,
-    chord_length_params,
-    fit_bezier,
-    ransac_fit_bezier,
-)
+from recon.geometry.bezier import CubicBezier
+from recon.geometry.bezier_fit import RansacFit, chord_length_params, fit_bezier, ransac_fit_bezier
 
 CURVE_2D = CubicBezier(np.array([[150.0, 230.0], [190.0, 160.0], [120.0, 80.0], [170.0, 10.0]]))
 CURVE_3D = CubicBezier(

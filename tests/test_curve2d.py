@@ -1,4 +1,4 @@
-"""Tests for recon.skeleton and recon.curve2d on synthetic masks with known centrelines."""
+"""Tests for recon.curve2d (skeleton, fit) on synthetic masks with known centrelines."""
 
 from __future__ import annotations
 
@@ -11,9 +11,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial import cKDTree
 
-from recon.bezier import CubicBezier
-from recon.curve2d import Curve2D, Curve2DConfig, MaskCurves, fit_mask_curves, points_in_mask
-from recon.skeleton import SkeletonConfig, extract_skeleton, preprocess_mask
+from recon.curve2d.fit import fit_mask_curves, points_in_mask
+from recon.curve2d.skeleton import SkeletonConfig, extract_skeleton, preprocess_mask
+from recon.curve2d.types import Curve2D, Curve2DConfig, MaskCurves
+from recon.geometry.bezier import CubicBezier
 
 H, W = 240, 320
 _PIXELS = np.stack(np.meshgrid(np.arange(W), np.arange(H)), axis=-1).reshape(-1, 2).astype(float)

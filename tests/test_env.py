@@ -19,15 +19,16 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import branch_gym
 from agents.baselines import NoRotationAgent, PeriodicAgent
-from branch_gym.env import VECTOR_SIZE, BranchScanEnv, ImageChannel, VectorField, vector_part
+from branch_gym.env import BranchScanEnv
 from branch_gym.env.config import ObservationConfig
+from branch_gym.env.layout import VECTOR_SIZE, ImageChannel, VectorField, vector_part
 from branch_gym.env.observation import PipelineState, draw_state, make_observation
 from branch_gym.env.overlay import draw_polyline
 from branch_gym.env.reward import RewardConfig, RewardTracker
 from branch_gym.scan import ScanConfig
-from branch_gym.sim.trees import TreeConfig
+from branch_gym.sim.tree.config import TreeConfig
 from recon.camera import CameraIntrinsics
-from recon.curve2d import fit_mask_curves
+from recon.curve2d.fit import fit_mask_curves
 from recon.metrics import TreeMetrics
 from recon.model import BranchModel, TreeModel
 from recon.modeler import Outcome

@@ -18,9 +18,9 @@ from branch_gym.env.layout import DISCRETE_ANGLES_DEG, TRIGGER_ANGLES_DEG
 from branch_gym.scan import ScanConfig, ScanSession
 from branch_gym.training.policy import action_type_of
 from recon.camera import CameraIntrinsics
-from recon.depth_oracle import DepthOracleTracker
 from recon.frame import Frame
-from recon.lk_tracker import LucasKanadeTracker
+from recon.tracking.depth_oracle import DepthOracleTracker
+from recon.tracking.lucas_kanade import LucasKanadeTracker
 
 SHORT = {
     "tracker": "oracle",

@@ -38,7 +38,7 @@ from branch_gym.evaluation.trials import (
     trial_path,
 )
 from branch_gym.scan import ScanConfig
-from branch_gym.sim.trees import BranchGT, TreeGT
+from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 from recon.metrics import TreeMetrics, aggregate
 from recon.model import BranchModel, TreeModel
 

@@ -9,7 +9,8 @@ import pybullet
 import pytest
 
 from branch_gym.sim.bullet import Bullet
-from branch_gym.sim.home import (
+from branch_gym.sim.robot.arm import UR5e
+from branch_gym.sim.robot.home import (
     SCAN_END_HEIGHT_M,
     SCAN_START_HEIGHT_M,
     Z_TARGET_M,
@@ -19,7 +20,7 @@ from branch_gym.sim.home import (
     home_configuration,
     sweep_scan_workspace,
 )
-from branch_gym.sim.robot import UR5e, camera_twist_from_world, orbit_camera_twist
+from branch_gym.sim.robot.motion import camera_twist_from_world, orbit_camera_twist
 
 STEP_S = 1.0 / 60.0
 SCAN_SPEED_MPS = 0.025  # reference.md "Scan": sim speed 2.5 cm/s

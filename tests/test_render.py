@@ -11,21 +11,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from branch_gym.sim.bullet import Bullet, BulletConfig
-from branch_gym.sim.camera import (
-    CameraSpec,
-    check_pose,
-    look_at,
-    render_camera,
-    render_snapshot,
-)
-from branch_gym.sim.scene import (
-    BackgroundConfig,
-    PlanarBackground,
-    SceneConfig,
-    TreeScene,
-    scene_folder,
-)
-from branch_gym.sim.trees import BranchGT, TreeGT
+from branch_gym.sim.scene.background import BackgroundConfig, PlanarBackground
+from branch_gym.sim.scene.camera import render_camera, render_snapshot
+from branch_gym.sim.scene.camera_spec import CameraSpec, check_pose, look_at
+from branch_gym.sim.scene.tree_scene import SceneConfig, TreeScene, scene_folder
+from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 
 NO_BACKGROUND = SceneConfig(background=BackgroundConfig(enabled=False), collision=False)
 

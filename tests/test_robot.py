@@ -10,24 +10,22 @@ import numpy as np
 import pybullet
 import pytest
 
-from branch_gym.sim import ur5e
 from branch_gym.sim.bullet import Bullet
-from branch_gym.sim.home import camera_pose_facing_branch, home_configuration
-from branch_gym.sim.robot import (
-    InverseKinematicsError,
-    MotionStatus,
-    RobotConfig,
-    UR5e,
-    camera_twist_from_world,
-    orbit_camera_twist,
-)
+from branch_gym.sim.robot import ur5e
+from branch_gym.sim.robot.arm import UR5e
+from branch_gym.sim.robot.camera_mount import CameraMountConfig, T_flange_camera
+from branch_gym.sim.robot.config import InverseKinematicsError, MotionStatus, RobotConfig
+from branch_gym.sim.robot.home import camera_pose_facing_branch, home_configuration
+from branch_gym.sim.robot.kinematics import dh_forward_kinematics, dh_jacobian, rotation_log
+from branch_gym.sim.robot.motion import camera_twist_from_world, orbit_camera_twist
+from branch_gym.sim.robot.ur5e_spec import JOINT_LIMIT_RAD
 
 STEP_S = 1.0 / 60.0
 BRANCH_POINT = np.array([0.0, 0.0, 0.275])
 
 
 def _angle_between(R_a: np.ndarray, R_b: np.ndarray) -> float:
-    return float(np.linalg.norm(ur5e.rotation_log(R_a.T @ R_b)))
+    return float(np.linalg.norm(rotation_log(R_a.T @ R_b)))
 
 
 @pytest.fixture(scope="module")
@@ -65,14 +63,14 @@ def _run(robot: UR5e, twist_of_pose, steps: int) -> tuple[MotionStatus, list[np.
 
 def test_pybullet_fk_matches_dh_table_on_random_joint_sets(robot: UR5e) -> None:
     rng = np.random.default_rng(2024)
-    T_flange_camera = ur5e.T_flange_camera(robot.config.mount)
+    T_flange_cam = T_flange_camera(robot.config.mount)
     for q in rng.uniform(-math.pi, math.pi, size=(50, 6)):
         robot.set_joint_positions(q)
-        T_expected = robot.T_world_base @ ur5e.dh_forward_kinematics(q)
+        T_expected = robot.T_world_base @ dh_forward_kinematics(q)
         T_flange = robot.T_world_flange()
         assert np.linalg.norm(T_flange[:3, 3] - T_expected[:3, 3]) < 1e-4
         assert _angle_between(T_flange[:3, :3], T_expected[:3, :3]) < 1e-4
-        T_camera_expected = T_expected @ T_flange_camera
+        T_camera_expected = T_expected @ T_flange_cam
         T_camera = robot.T_world_camera()
         assert np.linalg.norm(T_camera[:3, 3] - T_camera_expected[:3, 3]) < 1e-4
         assert _angle_between(T_camera[:3, :3], T_camera_expected[:3, :3]) < 1e-4
@@ -83,7 +81,7 @@ def test_camera_jacobian_matches_dh_jacobian(robot: UR5e) -> None:
     R_world_base = robot.T_world_base[:3, :3]
     for q in rng.uniform(-math.pi, math.pi, size=(10, 6)):
         robot.set_joint_positions(q)
-        _, J_base = ur5e.dh_jacobian(q, ur5e.T_flange_camera(robot.config.mount))
+        _, J_base = dh_jacobian(q, T_flange_camera(robot.config.mount))
         R_camera_base = robot.T_world_camera()[:3, :3].T @ R_world_base
         J_expected = np.vstack([R_camera_base @ J_base[:3], R_camera_base @ J_base[3:]])
         np.testing.assert_allclose(robot.camera_jacobian(), J_expected, atol=1e-8)
@@ -155,12 +153,12 @@ def test_wrist_singularity_is_reported_not_crossed(robot: UR5e) -> None:
 def test_joint_limit_is_reported_and_backing_off_is_allowed(robot: UR5e) -> None:
     q = robot.q
     margin_rad = math.radians(robot.config.joint_limit_margin_deg)
-    q[5] = ur5e.JOINT_LIMIT_RAD - margin_rad - math.radians(1.0)
+    q[5] = JOINT_LIMIT_RAD - margin_rad - math.radians(1.0)
     robot.set_joint_positions(q)
     status, _ = _run(robot, lambda arm: _joint_twist(arm, 5, 0.5), 30)
     assert status.reason == "joint_limit"
     assert "wrist_3_joint" in status.detail
-    assert robot.q[5] <= ur5e.JOINT_LIMIT_RAD - margin_rad
+    assert robot.q[5] <= JOINT_LIMIT_RAD - margin_rad
     assert robot.apply_camera_twist(_joint_twist(robot, 5, -0.5), STEP_S).ok
 
 
@@ -300,7 +298,7 @@ def test_bad_inputs_raise_value_error(robot: UR5e) -> None:
     with pytest.raises(ValueError, match="joint_limit_margin_deg"):
         RobotConfig(joint_limit_margin_deg=-1.0)
     with pytest.raises(ValueError, match="offset_m"):
-        ur5e.CameraMountConfig(forward_offset_m=math.nan)
+        CameraMountConfig(forward_offset_m=math.nan)
 
 
 def test_urdf_is_cached_outside_the_repository() -> None:
@@ -310,5 +308,5 @@ def test_urdf_is_cached_outside_the_repository() -> None:
     assert Path(__file__).resolve().parents[1] not in path.resolve().parents
     text = path.read_text()
     assert text.count('type="revolute"') == 6 and 'name="camera_optical"' in text
-    other = ur5e.write_ur5e_urdf(ur5e.CameraMountConfig(forward_offset_m=0.05))
+    other = ur5e.write_ur5e_urdf(CameraMountConfig(forward_offset_m=0.05))
     assert other != path

@@ -20,6 +20,7 @@ from recon.camera import (
     transform_points,
 )
 from recon.frame import Frame
+from recon.geometry.triangulate import triangulate_points
 from recon.tracking import (
     DepthOracleConfig,
     DepthOracleTracker,
@@ -28,7 +29,6 @@ from recon.tracking import (
     LucasKanadeTracker,
     Tracks,
 )
-from recon.triangulate import triangulate_points
 
 INTRINSICS = CameraIntrinsics.from_fov()
 WIDTH, HEIGHT = INTRINSICS.width, INTRINSICS.height

@@ -8,7 +8,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from branch_gym.sim.texture import (
+from branch_gym.sim.scene.texture import (
     BARK,
     FOLIAGE,
     TextureConfig,
@@ -16,7 +16,7 @@ from branch_gym.sim.texture import (
     make_texture,
     write_png,
 )
-from branch_gym.sim.tree_mesh import TubeMesh, TubeMeshConfig, tube_mesh, write_obj
+from branch_gym.sim.scene.tree_mesh import TubeMesh, TubeMeshConfig, tube_mesh, write_obj
 
 
 def _curved_branch(n: int = 301) -> tuple[np.ndarray, np.ndarray]:

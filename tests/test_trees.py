@@ -8,14 +8,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from branch_gym.sim.trees import (
-    BranchGT,
-    TreeConfig,
-    TreeGT,
-    generate_tree,
-    sample_primary_bezier,
-    tree_from_seed,
-)
+from branch_gym.sim.tree.config import TreeConfig
+from branch_gym.sim.tree.generator import generate_tree, sample_primary_bezier, tree_from_seed
+from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 
 N_SEEDS = 200
 SLACK = 1e-9  # float tolerance on range checks

@@ -1,4 +1,4 @@
-"""Tests for recon.triangulate: exactness, noise behaviour, lost-track handling, validation."""
+"""Tests for recon.geometry.triangulate: exactness, noise, lost tracks, validation."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from recon.camera import CameraIntrinsics, make_pose, project_points, projection_matrix
-from recon.triangulate import triangulate_points
+from recon.geometry.triangulate import triangulate_points
 
 INTRINSICS = CameraIntrinsics.from_fov()
 

@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from branch_gym.sim.bullet import BulletConfig
-from branch_gym.sim.camera import CameraSpec
-from branch_gym.sim.home import SCAN_START_HEIGHT_M, Z_TARGET_M
-from branch_gym.sim.robot import InverseKinematicsError, RobotConfig
-from branch_gym.sim.scene import FIRST_SECONDARY_LABEL, PRIMARY_LABEL
-from branch_gym.sim.trees import BranchGT, TreeConfig, TreeGT
+from branch_gym.sim.robot.config import InverseKinematicsError, RobotConfig
+from branch_gym.sim.robot.home import SCAN_START_HEIGHT_M, Z_TARGET_M
+from branch_gym.sim.scene.camera_spec import CameraSpec
+from branch_gym.sim.scene.tree_scene import FIRST_SECONDARY_LABEL, PRIMARY_LABEL
+from branch_gym.sim.tree.config import TreeConfig
+from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 from branch_gym.sim.world import World, WorldConfig
 
 # Home pose tolerances (task brief: z_target within +-1 mm).

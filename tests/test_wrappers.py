@@ -14,8 +14,8 @@ from gymnasium.envs.registration import EnvSpec
 from gymnasium.wrappers import FlattenObservation, FrameStackObservation, RecordEpisodeStatistics
 
 import branch_gym
-from branch_gym.env import VECTOR_SIZE
-from branch_gym.sim.trees import TreeConfig
+from branch_gym.env.layout import VECTOR_SIZE
+from branch_gym.sim.tree.config import TreeConfig
 
 # ~4 steps an episode: iterations at ~0.284, 0.294, 0.304, 0.314 m, then the end height.
 SHORT = {"tracker": "oracle", "end_height_m": 0.32}

@@ -24,7 +24,8 @@ from branch_gym.env.layout import (
 )
 from branch_gym.env.reward import RewardConfig
 from branch_gym.scan import ScanConfig
-from branch_gym.sim.trees import TreeConfig, TreeGT
+from branch_gym.sim.tree.config import TreeConfig
+from branch_gym.sim.tree.ground_truth import TreeGT
 
 TREE_PRESETS = ("paper", "cluttered", "hard")
 RESET_OPTIONS = ("tree",)

@@ -32,7 +32,7 @@ from branch_gym.env.layout import (
 from branch_gym.env.overlay import draw_curve, draw_model
 from branch_gym.scan import ScanSession
 from recon.camera import CameraIntrinsics
-from recon.curve2d import Curve2D, MaskCurves
+from recon.curve2d.types import Curve2D, MaskCurves
 from recon.model import TreeModel
 from recon.modeler import IterationReport, Outcome
 

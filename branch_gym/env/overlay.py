@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from recon.camera import CameraIntrinsics, project_points
-from recon.curve2d import Curve2D
+from recon.curve2d.types import Curve2D
 from recon.model import BranchModel
 
 # Sub-pixel precision of cv2 drawing: coordinates carry 2 fractional bits.

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from branch_gym.sim.trees import TreeGT
+from branch_gym.sim.tree.ground_truth import TreeGT
 from recon.metrics import TreeMetrics
 from recon.model import TreeModel
 

@@ -13,11 +13,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from branch_gym.sim.bullet import Bullet, BulletConfig
-from branch_gym.sim.camera import CameraImages, CameraSpec, render_snapshot
-from branch_gym.sim.home import SCAN_START_HEIGHT_M, Z_TARGET_M, home_configuration
-from branch_gym.sim.robot import MotionStatus, RobotConfig, UR5e
-from branch_gym.sim.scene import SceneConfig, TreeScene
-from branch_gym.sim.trees import TreeConfig, TreeGT, generate_tree
+from branch_gym.sim.robot.arm import UR5e
+from branch_gym.sim.robot.config import MotionStatus, RobotConfig
+from branch_gym.sim.robot.home import SCAN_START_HEIGHT_M, Z_TARGET_M, home_configuration
+from branch_gym.sim.scene.camera import CameraImages, render_snapshot
+from branch_gym.sim.scene.camera_spec import CameraSpec
+from branch_gym.sim.scene.tree_scene import SceneConfig, TreeScene
+from branch_gym.sim.tree.config import TreeConfig
+from branch_gym.sim.tree.generator import generate_tree
+from branch_gym.sim.tree.ground_truth import TreeGT
 
 logger = logging.getLogger(__name__)
 

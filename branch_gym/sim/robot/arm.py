@@ -1,0 +1,263 @@
+"""The simulated UR5e with an eye-in-hand camera: state, forward kinematics, contact checks.
+
+The class :class:`UR5e` lives here; two mixins add what it does with that state:
+
+* ``branch_gym/sim/robot/motion.py``: camera twists, damped least-squares twist control
+  (:meth:`UR5e.apply_camera_twist`) and straight-line moves (:meth:`UR5e.move_camera_to`);
+  also :func:`camera_twist_from_world` and :func:`orbit_camera_twist`.
+* ``branch_gym/sim/robot/ik.py``: camera-pose inverse kinematics (:meth:`UR5e.solve_ik`).
+
+Configuration and outcome types (:class:`RobotConfig`, :class:`MotionStatus`,
+:class:`InverseKinematicsError`) live in ``branch_gym/sim/robot/config.py``.
+
+Only this class should set the arm's joints: it caches the joint vector, the camera pose and the
+Jacobian between steps.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pybullet
+
+from branch_gym.sim.bullet import Bullet
+from branch_gym.sim.robot import ur5e
+from branch_gym.sim.robot.camera_mount import T_flange_camera
+from branch_gym.sim.robot.config import (
+    RobotConfig,
+)
+from branch_gym.sim.robot.ik import CameraIKMixin
+from branch_gym.sim.robot.motion import (
+    CameraMotionMixin,
+)
+from branch_gym.sim.robot.ur5e_spec import (
+    CAMERA_LINK,
+    FLANGE_LINK,
+    JOINT_LIMIT_RAD,
+    LINK_NAMES,
+    N_JOINTS,
+)
+
+__all__ = ["UR5e"]
+
+_ZEROS6 = [0.0] * N_JOINTS
+
+
+class UR5e(CameraMotionMixin, CameraIKMixin):
+    """A UR5e with a camera on its flange, loaded into one :class:`Bullet` world.
+
+    ``bullet.reset()`` removes the robot with every other body: build a new ``UR5e`` afterwards.
+
+    Attributes:
+        bullet: The world the robot lives in.
+        config: Its configuration.
+        body_id: pybullet body id of the arm.
+    """
+
+    def __init__(
+        self, bullet: Bullet, config: RobotConfig | None = None, q: np.ndarray | None = None
+    ) -> None:
+        """Load the arm and set its joints.
+
+        Args:
+            bullet: The pybullet world.
+            config: Robot configuration; defaults to :class:`RobotConfig()`.
+            q: (6,) initial joint angles (rad); the placement's home seed if None.
+        """
+        self.bullet = bullet
+        self.config = config or RobotConfig()
+        base = self.config.base
+        urdf_path = ur5e.write_ur5e_urdf(
+            self.config.mount,
+            pedestal_height_m=base.position_m[2],
+            pedestal_radius_m=base.pedestal_radius_m,
+        )
+        half_yaw = 0.5 * math.radians(base.yaw_deg)
+        self.body_id: int = bullet.p.loadURDF(
+            str(urdf_path),
+            basePosition=base.position_m,
+            baseOrientation=(0.0, 0.0, math.sin(half_yaw), math.cos(half_yaw)),
+            useFixedBase=True,
+        )
+        names = {
+            bullet.p.getJointInfo(self.body_id, j)[12].decode(): j
+            for j in range(bullet.p.getNumJoints(self.body_id))
+        }
+        self._joint_indices = [names[n] for n in LINK_NAMES]
+        self._camera_link = names[CAMERA_LINK]
+        self._flange_link = names[FLANGE_LINK]
+        self._link_names = {index: name for name, index in names.items()} | {-1: "base_link"}
+        self._self_collision_pairs = self._non_adjacent_link_pairs()
+        self._all_links = [-1, *sorted(names.values())]
+        row = {link: i for i, link in enumerate(self._all_links)}
+        self._pair_rows = (
+            np.array([row[a] for a, _ in self._self_collision_pairs]),
+            np.array([row[b] for _, b in self._self_collision_pairs]),
+        )
+        # pybullet calls made every step, bound once (the client's attribute lookup costs ~1 us).
+        self._bullet_closest_points = bullet.p.getClosestPoints
+        self._bullet_get_aabb = bullet.p.getAABB
+        self._bullet_jacobian = bullet.p.calculateJacobian
+        self._bullet_reset_joints = bullet.p.resetJointStatesMultiDof
+        self._bullet_link_state = bullet.p.getLinkState
+        self._T_world_base = base.T_world_base
+        self._T_base_world = np.linalg.inv(self._T_world_base)
+        self._T_flange_camera = T_flange_camera(self.config.mount)
+        self._limit_rad = JOINT_LIMIT_RAD - math.radians(self.config.joint_limit_margin_deg)
+        self._obstacle_ids: tuple[int, ...] = ()
+        self._obstacle_links: list[tuple[int, range]] = []
+        self._q = np.zeros(N_JOINTS)
+        self._T_world_camera = np.eye(4)
+        self._J_world = np.zeros((6, N_JOINTS))
+        self.set_joint_positions(base.home_seed_q if q is None else q)
+
+    # --- state ---------------------------------------------------------------------------
+
+    @property
+    def q(self) -> np.ndarray:
+        """(6,) current joint angles in radians (a copy)."""
+        return self._q.copy()
+
+    @property
+    def T_world_base(self) -> np.ndarray:
+        """(4, 4) pose of the robot base in the world (a copy)."""
+        return self._T_world_base.copy()
+
+    @property
+    def obstacle_ids(self) -> tuple[int, ...]:
+        """Bodies the arm must not touch (checked after every step)."""
+        return self._obstacle_ids
+
+    def set_obstacles(self, body_ids: Sequence[int]) -> None:
+        """Declare the bodies to avoid (the tree, the ground, ...); replaces the previous set."""
+        ids = tuple(int(b) for b in body_ids)
+        if self.body_id in ids:
+            raise ValueError("the robot cannot be its own obstacle (self-collision is separate)")
+        self._obstacle_ids = ids
+        get_num_joints = self.bullet.p.getNumJoints
+        self._obstacle_links = [(b, range(-1, get_num_joints(b))) for b in ids]
+
+    def set_joint_positions(self, q: np.ndarray) -> None:
+        """Teleport the joints (no checks besides shape and finiteness).
+
+        Args:
+            q: (6,) joint angles in radians.
+        """
+        q = np.asarray(q, dtype=float)
+        if q.shape != (N_JOINTS,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"q must be a finite ({N_JOINTS},) vector, got {q}")
+        self._apply_q(q, self._world_jacobian(q))
+
+    def _apply_q(self, q: np.ndarray, J_world: np.ndarray) -> None:
+        self._bullet_reset_joints(self.body_id, self._joint_indices, [[float(v)] for v in q])
+        state = self._bullet_link_state(
+            self.body_id, self._camera_link, computeForwardKinematics=True
+        )
+        self._T_world_camera = _pose_from_pybullet(state[4], state[5])
+        self._q = q.copy()
+        self._J_world = J_world
+
+    # --- kinematics ----------------------------------------------------------------------
+
+    def T_world_camera(self) -> np.ndarray:
+        """(4, 4) camera pose (OpenCV axes) in the world, from pybullet's forward kinematics."""
+        return self._T_world_camera.copy()
+
+    def T_world_flange(self) -> np.ndarray:
+        """(4, 4) tool-flange pose (UR ``tool0``: z out of the flange) in the world."""
+        p = self.bullet.p
+        state = p.getLinkState(self.body_id, self._flange_link, computeForwardKinematics=True)
+        return _pose_from_pybullet(state[4], state[5])
+
+    def _world_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """(6, 6) pybullet Jacobian of the camera origin at ``q``, world axes (state untouched).
+
+        pybullet returns a fixed-base Jacobian in the base frame; it is rotated to world axes.
+        """
+        linear, angular = self._bullet_jacobian(
+            self.body_id, self._camera_link, [0.0, 0.0, 0.0], q.tolist(), _ZEROS6, _ZEROS6
+        )
+        R_world_base = self._T_world_base[:3, :3]
+        return np.vstack([R_world_base @ np.asarray(linear), R_world_base @ np.asarray(angular)])
+
+    def camera_jacobian(self) -> np.ndarray:
+        """(6, 6) Jacobian mapping joint rates (rad/s) to the camera twist [v, w] in camera axes."""
+        return self._camera_frame(self._J_world, self._T_world_camera[:3, :3])
+
+    @staticmethod
+    def _camera_frame(J_world: np.ndarray, R_world_camera: np.ndarray) -> np.ndarray:
+        J = np.empty_like(J_world)
+        J[:3] = R_world_camera.T @ J_world[:3]
+        J[3:] = R_world_camera.T @ J_world[3:]
+        return J
+
+    def manipulability(self) -> float:
+        """``sqrt(det(J J^T))`` of the camera Jacobian at the current configuration."""
+        return abs(float(np.linalg.det(self._J_world)))
+
+    # --- checks --------------------------------------------------------------------------
+
+    def _non_adjacent_link_pairs(self) -> list[tuple[int, int]]:
+        """Link pairs at least two rigid bodies apart in the chain (flange, camera = wrist 3)."""
+        rigid_body = {-1: 0} | {index: i + 1 for i, index in enumerate(self._joint_indices)}
+        rigid_body[self._flange_link] = rigid_body[self._joint_indices[-1]]
+        rigid_body[self._camera_link] = rigid_body[self._joint_indices[-1]]
+        links = sorted(rigid_body)
+        return [
+            (a, b)
+            for i, a in enumerate(links)
+            for b in links[i + 1 :]
+            if abs(rigid_body[a] - rigid_body[b]) >= 2
+        ]
+
+    def _link_aabbs(self) -> tuple[np.ndarray, np.ndarray]:
+        """(n_links, 3) lower and upper world AABB corners of every link, base (-1) first."""
+        get_aabb = self._bullet_get_aabb
+        boxes = [get_aabb(self.body_id, link) for link in self._all_links]
+        return np.array([box[0] for box in boxes]), np.array([box[1] for box in boxes])
+
+    def check_collision(self) -> str | None:
+        """Describe the first contact of the arm, or None when it touches nothing.
+
+        Checks the moving links (not the base or its pedestal, which stand on the ground) against
+        the ground plane (by their bounding boxes, which err on the safe side by ~1 cm) and every
+        obstacle link, then non-adjacent links against each other. Axis-aligned bounding boxes
+        skip the pairs that cannot touch; pybullet's closest points decide the others.
+        """
+        closest_points = self._bullet_closest_points
+        get_aabb = self._bullet_get_aabb
+        margin = self.config.collision_margin_m
+        lower, upper = self._link_aabbs()
+        moving_lower, moving_upper = lower[1:].min(axis=0) - margin, upper[1:].max(axis=0) + margin
+        ground_m = self.config.ground_height_m
+        if ground_m is not None and moving_lower[2] < ground_m:
+            row = int(np.argmin(lower[1:, 2])) + 1
+            return f"{self._link_names[self._all_links[row]]} reaches below the ground"
+        for obstacle, links in self._obstacle_links:
+            for link in links:
+                link_lower, link_upper = get_aabb(obstacle, link)
+                if np.any(moving_lower > link_upper) or np.any(moving_upper < link_lower):
+                    continue
+                for contact in closest_points(self.body_id, obstacle, margin, linkIndexB=link):
+                    if contact[3] >= 0:
+                        return f"{self._link_names[contact[3]]} touches body {obstacle}"
+        if self.config.self_collision:
+            a, b = self._pair_rows
+            overlap = np.all(lower[a] <= upper[b] + margin, axis=1) & np.all(
+                lower[b] <= upper[a] + margin, axis=1
+            )
+            for k in np.flatnonzero(overlap):
+                link_a, link_b = self._self_collision_pairs[k]
+                if closest_points(self.body_id, self.body_id, margin, link_a, link_b):
+                    return f"{self._link_names[link_a]} touches {self._link_names[link_b]}"
+        return None
+
+
+def _pose_from_pybullet(position: Sequence[float], quaternion: Sequence[float]) -> np.ndarray:
+    """(4, 4) pose from a pybullet position and (x, y, z, w) quaternion."""
+    T = np.eye(4)
+    T[:3, :3] = np.asarray(pybullet.getMatrixFromQuaternion(quaternion)).reshape(3, 3)
+    T[:3, 3] = position
+    return T

@@ -1,0 +1,246 @@
+"""Camera motion of the simulated UR5e: camera-frame twists, DLS twist control, straight moves.
+
+Motion is kinematic (no dynamics): a camera-frame twist becomes joint rates by damped least
+squares on the pybullet Jacobian of the camera link, integrated with the midpoint rule at a fixed
+control step. Each step is checked before it is kept, and a failed step leaves the robot where it
+was and says why (:class:`MotionStatus`): singularity, joint limit, joint speed or collision.
+
+:class:`CameraMotionMixin` is one of the bases of :class:`branch_gym.sim.robot.arm.UR5e`, which
+provides the state and the checks it uses: ``config``, ``_q``, ``_T_world_camera``, ``_J_world``,
+``_limit_rad``, ``manipulability()``, ``_camera_frame()``, ``_world_jacobian()``, ``_apply_q()``
+and ``check_collision()``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from branch_gym.sim.robot.config import MotionStatus, RobotConfig
+from branch_gym.sim.robot.kinematics import check_transform, pose_error, rotation_exp
+from branch_gym.sim.robot.ur5e_spec import JOINT_NAMES
+
+logger = logging.getLogger(__name__)
+
+
+def camera_twist_from_world(
+    T_world_camera: np.ndarray,
+    linear_velocity_world_mps: np.ndarray,
+    angular_velocity_world_radps: np.ndarray,
+) -> np.ndarray:
+    """Express a world-frame velocity of the camera as a camera-frame twist.
+
+    Args:
+        T_world_camera: (4, 4) current camera pose.
+        linear_velocity_world_mps: (3,) velocity of the camera origin, world axes (m/s).
+        angular_velocity_world_radps: (3,) angular velocity, world axes (rad/s).
+
+    Returns:
+        (6,) [v (m/s), w (rad/s)] in camera axes, as :meth:`UR5e.apply_camera_twist` takes it.
+    """
+    R_world_camera = np.asarray(T_world_camera, dtype=float)[:3, :3]
+    return np.concatenate(
+        [
+            R_world_camera.T @ np.asarray(linear_velocity_world_mps, dtype=float),
+            R_world_camera.T @ np.asarray(angular_velocity_world_radps, dtype=float),
+        ]
+    )
+
+
+def orbit_camera_twist(
+    T_world_camera: np.ndarray, pivot_world_m: np.ndarray, yaw_rate_radps: float
+) -> np.ndarray:
+    """Camera twist that turns the camera about the world-vertical axis through a pivot.
+
+    The camera-frame twist of a rotation about a fixed world axis is constant, so applying this
+    twist for ``angle / yaw_rate_radps`` seconds moves the camera exactly along the circle (up to
+    the integration error).
+
+    Args:
+        T_world_camera: (4, 4) current camera pose.
+        pivot_world_m: (3,) a point on the rotation axis (e.g. the branch point looked at), m.
+        yaw_rate_radps: Rotation rate about +z (rad/s), right-handed.
+
+    Returns:
+        (6,) camera-frame twist [v (m/s), w (rad/s)].
+    """
+    omega_world = np.array([0.0, 0.0, float(yaw_rate_radps)])
+    lever_m = np.asarray(T_world_camera, dtype=float)[:3, 3] - np.asarray(pivot_world_m, float)
+    return camera_twist_from_world(T_world_camera, np.cross(omega_world, lever_m), omega_world)
+
+
+class CameraMotionMixin:
+    """Twist control and straight-line moves of the camera (mixed into ``UR5e``)."""
+
+    config: RobotConfig
+    _q: np.ndarray
+    _T_world_camera: np.ndarray
+    _J_world: np.ndarray
+    _limit_rad: float
+
+    def apply_camera_twist(self, twist_camera: np.ndarray, dt_s: float) -> MotionStatus:
+        """Move the camera with a constant camera-frame twist for ``dt_s`` seconds.
+
+        The command is split into equal sub-steps of at most ``control_time_step_s``. Each sub-step
+        maps the twist to joint rates by damped least squares, integrates them, and keeps the
+        result only if it passes the checks; otherwise the robot stays at the last good sub-step.
+
+        Args:
+            twist_camera: (6,) [v (m/s), w (rad/s)], velocity of the camera origin and angular
+                velocity, both in camera axes (OpenCV: x right, y down, z forward).
+            dt_s: Duration in seconds.
+
+        Returns:
+            The status; ``elapsed_s`` is the time actually moved.
+
+        Raises:
+            ValueError: The twist is not a finite (6,) vector or ``dt_s`` is not positive.
+        """
+        twist = np.asarray(twist_camera, dtype=float)
+        if twist.shape != (6,) or not np.all(np.isfinite(twist)):
+            raise ValueError(f"twist_camera must be a finite (6,) vector, got {twist_camera}")
+        if not (math.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be positive and finite, got {dt_s}")
+        n_steps = max(1, math.ceil(dt_s / self.config.control_time_step_s - 1e-9))
+        step_s = dt_s / n_steps
+        status = MotionStatus(True, "ok", self.manipulability())
+        for k in range(n_steps):
+            status = self._step(twist, step_s)
+            if not status.ok:
+                logger.debug("camera twist stopped: %s (%s)", status.reason, status.detail)
+                return replace(status, elapsed_s=k * step_s)
+        return replace(status, elapsed_s=dt_s)
+
+    def _joint_rates(
+        self, J_world: np.ndarray, R_world_camera: np.ndarray, twist: np.ndarray
+    ) -> tuple[np.ndarray, float]:
+        """Damped least-squares joint rates for a camera-frame twist, and the manipulability."""
+        U, sigma, Vt = np.linalg.svd(self._camera_frame(J_world, R_world_camera))
+        gains = sigma / (sigma**2 + self._damping_sq(sigma[-1]))
+        return Vt.T @ (gains * (U.T @ twist)), float(np.prod(sigma))
+
+    def _step(self, twist: np.ndarray, step_s: float) -> MotionStatus:
+        """One checked control step, integrated with the midpoint rule (second order)."""
+        config = self.config
+        q = self._q
+        R_world_camera = self._T_world_camera[:3, :3]
+        q_rate, manipulability = self._joint_rates(self._J_world, R_world_camera, twist)
+        # Midpoint: the camera's mid-step orientation is known from the commanded body rate.
+        q_mid = q + 0.5 * step_s * q_rate
+        R_mid = R_world_camera @ rotation_exp(0.5 * step_s * twist[3:])
+        q_rate, _ = self._joint_rates(self._world_jacobian(q_mid), R_mid, twist)
+        q_next = q + q_rate * step_s
+        J_next = self._world_jacobian(q_next)
+        manipulability_next = abs(float(np.linalg.det(J_next)))
+        worst = min(manipulability, manipulability_next)
+        if worst < config.manipulability_threshold:
+            return MotionStatus(
+                False,
+                "singularity",
+                worst,
+                detail=f"manipulability {worst:.4g} < {config.manipulability_threshold}",
+            )
+        speed_ratio = np.abs(q_rate) / config.max_joint_speed_radps
+        if np.any(speed_ratio > 1.0):
+            joint = int(np.argmax(speed_ratio))
+            return MotionStatus(
+                False,
+                "joint_speed",
+                manipulability,
+                detail=f"{JOINT_NAMES[joint]} at {math.degrees(q_rate[joint]):.1f} deg/s",
+            )
+        beyond = (np.abs(q_next) > self._limit_rad) & (np.abs(q_next) > np.abs(q))
+        if np.any(beyond):
+            joint = int(np.argmax(beyond))
+            return MotionStatus(
+                False,
+                "joint_limit",
+                manipulability,
+                detail=f"{JOINT_NAMES[joint]} would reach {math.degrees(q_next[joint]):.1f} deg",
+            )
+        J_previous = self._J_world
+        self._apply_q(q_next, J_next)
+        contact = self.check_collision()
+        if contact is not None:
+            self._apply_q(q, J_previous)
+            return MotionStatus(False, "collision", manipulability, detail=contact)
+        return MotionStatus(True, "ok", manipulability_next)
+
+    def _damping_sq(self, smallest_sigma: float) -> float:
+        """lambda^2 of the variable-damping DLS: 0 above the band, up to damping_max^2 at 0."""
+        band = self.config.damping_sigma_band
+        if smallest_sigma >= band:
+            return 0.0
+        return (1.0 - (smallest_sigma / band) ** 2) * self.config.damping_max**2
+
+    def move_camera_to(
+        self,
+        T_world_camera_target: np.ndarray,
+        speed_mps: float,
+        angular_speed_radps: float = 0.5,
+        max_duration_s: float | None = None,
+    ) -> MotionStatus:
+        """Move the camera to a pose along a straight line, turning along the shortest rotation.
+
+        Proportional law on the world-frame pose error, saturated so that neither speed exceeds
+        its limit; position and rotation errors shrink by the same factor each step, so the
+        camera origin stays on the line and both arrive together.
+
+        Args:
+            T_world_camera_target: (4, 4) target camera pose.
+            speed_mps: Linear speed limit of the camera origin (m/s).
+            angular_speed_radps: Angular speed limit (rad/s). Our default: 0.5 rad/s.
+            max_duration_s: Give up ("timeout") after this much simulated time; by default twice
+                the saturated travel time plus 2 s.
+
+        Returns:
+            The status; ``elapsed_s`` is the simulated time the move took.
+        """
+        T_target = check_transform(T_world_camera_target, "T_world_camera_target")
+        if not (math.isfinite(speed_mps) and speed_mps > 0):
+            raise ValueError(f"speed_mps must be positive, got {speed_mps}")
+        if not (math.isfinite(angular_speed_radps) and angular_speed_radps > 0):
+            raise ValueError(f"angular_speed_radps must be positive, got {angular_speed_radps}")
+        config = self.config
+        error = pose_error(T_target, self._T_world_camera)
+        if max_duration_s is None:
+            travel_s = max(
+                np.linalg.norm(error[:3]) / speed_mps,
+                np.linalg.norm(error[3:]) / angular_speed_radps,
+            )
+            max_duration_s = 2.0 * travel_s + 2.0
+        angle_tolerance_rad = math.radians(config.move_angle_tolerance_deg)
+        elapsed_s = 0.0
+        while True:
+            error = pose_error(T_target, self._T_world_camera)
+            position_error_m = float(np.linalg.norm(error[:3]))
+            angle_error_rad = float(np.linalg.norm(error[3:]))
+            if (
+                position_error_m <= config.move_position_tolerance_m
+                and angle_error_rad <= angle_tolerance_rad
+            ):
+                return MotionStatus(True, "ok", self.manipulability(), elapsed_s)
+            if elapsed_s >= max_duration_s:
+                return MotionStatus(
+                    False,
+                    "timeout",
+                    self.manipulability(),
+                    elapsed_s,
+                    detail=f"{position_error_m * 1e3:.2f} mm, "
+                    f"{math.degrees(angle_error_rad):.3f} deg left after {elapsed_s:.2f} s",
+                )
+            command = config.move_gain_per_s * error
+            scale = min(
+                1.0,
+                speed_mps / max(np.linalg.norm(command[:3]), 1e-12),
+                angular_speed_radps / max(np.linalg.norm(command[3:]), 1e-12),
+            )
+            command *= scale
+            twist = camera_twist_from_world(self._T_world_camera, command[:3], command[3:])
+            status = self.apply_camera_twist(twist, config.control_time_step_s)
+            elapsed_s += status.elapsed_s
+            if not status.ok:
+                return replace(status, elapsed_s=elapsed_s)

@@ -1,0 +1,1 @@
+"""Procedural trees with exact ground truth: distribution (config), generator, ground truth."""

@@ -1,0 +1,183 @@
+"""The tree distribution (:class:`TreeConfig`) and its validation.
+
+Defaults are the paper's simulated world; ``sim/tree/generator.py`` samples trees from it and
+explains the geometry (world frame, placement, radius tapering).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+
+import numpy as np
+
+YAW_MODES = ("uniform", "toward_camera", "away_from_camera", "toward_or_away_camera")
+# Instance labels 2 + i must stay below the first clutter label 100 (label-image convention).
+_MAX_SECONDARIES = 98
+
+
+@dataclass(frozen=True)
+class TreeConfig:
+    """The tree distribution. Defaults are the paper's simulated world.
+
+    Ranges are ``(low, high)`` tuples sampled uniformly (integers inclusive); ``low == high``
+    fixes a value. Angles in degrees, lengths in metres. Yaw is measured in the world xy plane
+    from +x toward +y; elevation is the angle above the horizontal plane.
+    """
+
+    # --- primary (reference.md "Simulated world", paper VI-A) ---
+    primary_height_m: float = 1.0  # cubic Bezier from z = 0 to z = 1.0 m
+    primary_top_offset_range_m: tuple[float, float] = (-0.10, 0.10)  # top end x, y offset
+    primary_max_tilt_deg: float = 30.0  # inner control points tilted at most 30 deg
+    primary_max_handle_fraction: float = 0.5  # handle length at most half the branch length
+    primary_radius_range_m: tuple[float, float] = (0.003, 0.0075)  # radius ~ U(3, 7.5) mm
+    # Height where the sampled radius holds: middle of the scan band 0.275-0.75 m (task brief).
+    primary_radius_reference_height_m: float = 0.5
+    # Fractional radius loss per metre of arc length going up; project choice (mild; the
+    # authors' tubes are constant, 0 reproduces them).
+    primary_taper_per_m: float = 0.2
+    # The primary passes (x, y) = (0, 0) at the scan start height 0.275 m (reference.md, "Scan").
+    placement_height_m: float = 0.275
+    placement_jitter_y_range_m: tuple[float, float] = (-0.02, 0.02)  # U(-2, 2) cm jitter
+    centerline_spacing_m: float = 0.001  # dense ground truth: 1 mm spacing (task brief)
+
+    # --- secondaries (reference.md "Simulated world", paper VI-A) ---
+    secondary_count_range: tuple[int, int] = (0, 5)  # 0 to 5 per tree
+    secondary_base_height_range_m: tuple[float, float] = (0.325, 0.75)  # paper (code: 0.70)
+    secondary_group_height_m: float = 0.05  # bases closer than 5 cm share one height
+    secondary_elevation_range_deg: tuple[float, float] = (-15.0, 45.0)  # elevation [-15, 45]
+    yaw_mode: str = "uniform"  # "yaw can be any value"; other modes: harder variants
+    yaw_spread_deg: float = 30.0  # half-width of the yaw spread in non-uniform modes
+    secondary_length_range_m: tuple[float, float] = (0.05, 0.15)  # length ~ U(5, 15) cm
+    secondary_radius_scale_range: tuple[float, float] = (0.8, 1.0)  # x primary radius
+    secondary_tip_radius_fraction: float = 0.8  # mild taper: project choice (authors: 1.0)
+    secondary_bend_steps: int = 10  # upward bending steps (authors' code: 10)
+    # Upward bending strength per metre (authors' code: phototropism coefficient U(0, 2)).
+    secondary_bend_strength_range_per_m: tuple[float, float] = (0.0, 2.0)
+
+    # --- clutter (harder variants; off in the paper's world) ---
+    background_tree_count_range: tuple[int, int] = (0, 0)
+    # Distance behind the scanned tree's deepest point; orchard trees were 30-40 cm behind (VI-C).
+    background_tree_distance_range_m: tuple[float, float] = (0.3, 1.0)
+    background_tree_x_range_m: tuple[float, float] = (-0.3, 0.3)  # lateral spread, in view
+    background_tree_radius_range_m: tuple[float, float] = (0.005, 0.015)  # project choice
+    trellis_wire_heights_m: tuple[float, ...] = ()  # horizontal wires along x at these heights
+    trellis_wire_distance_m: float = 0.3  # behind the scanned tree's deepest point
+    trellis_wire_radius_m: float = 0.0015  # ~3 mm trellis wire: project choice
+    trellis_wire_half_length_m: float = 0.5  # wires span x in [-0.5, 0.5] m
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            if "_range" in f.name:
+                _check_range(f.name, getattr(self, f.name))
+        positive = (
+            "primary_height_m",
+            "primary_radius_range_m",
+            "centerline_spacing_m",
+            "secondary_length_range_m",
+            "secondary_radius_scale_range",
+            "secondary_bend_steps",
+            "background_tree_radius_range_m",
+            "trellis_wire_radius_m",
+            "trellis_wire_half_length_m",
+        )
+        for name in positive:
+            _require(np.min(getattr(self, name)) > 0, name, "must be positive")
+        non_negative = (
+            "secondary_count_range",
+            "secondary_group_height_m",
+            "secondary_bend_strength_range_per_m",
+            "background_tree_count_range",
+            "background_tree_distance_range_m",
+            "trellis_wire_distance_m",
+        )
+        for name in non_negative:
+            _require(np.min(getattr(self, name)) >= 0, name, "must be non-negative")
+        for name in (
+            "secondary_count_range",
+            "background_tree_count_range",
+            "secondary_bend_steps",
+        ):
+            values = np.atleast_1d(getattr(self, name))
+            _require(all(int(v) == v for v in values), name, "must hold integers")
+        _require(
+            self.secondary_count_range[1] <= _MAX_SECONDARIES,
+            "secondary_count_range",
+            f"allows at most {_MAX_SECONDARIES} branches (instance labels 2 + i < 100)",
+        )
+        _require(0 <= self.primary_max_tilt_deg < 90, "primary_max_tilt_deg", "must be in [0, 90)")
+        _require(
+            0 <= self.primary_max_handle_fraction <= 1,
+            "primary_max_handle_fraction",
+            "must be in [0, 1]",
+        )
+        _require(0 <= self.primary_taper_per_m < 1, "primary_taper_per_m", "must be in [0, 1)")
+        _require(
+            0 < self.secondary_tip_radius_fraction <= 1,
+            "secondary_tip_radius_fraction",
+            "must be in (0, 1]",
+        )
+        _require(0 <= self.yaw_spread_deg <= 180, "yaw_spread_deg", "must be in [0, 180]")
+        _require(self.yaw_mode in YAW_MODES, "yaw_mode", f"must be one of {YAW_MODES}")
+        elevation = self.secondary_elevation_range_deg
+        _require(
+            -90 <= elevation[0] and elevation[1] <= 90,
+            "secondary_elevation_range_deg",
+            "must lie in [-90, 90]",
+        )
+        heights = (
+            "placement_height_m",
+            "primary_radius_reference_height_m",
+            "secondary_base_height_range_m",
+            "trellis_wire_heights_m",
+        )
+        for name in heights:
+            values = np.atleast_1d(np.asarray(getattr(self, name), dtype=float))
+            _require(
+                bool(np.all((values >= 0) & (values <= self.primary_height_m))),
+                name,
+                "must lie within [0, primary_height_m]",
+            )
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able values (tuples become lists)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TreeConfig:
+        """Inverse of :meth:`to_dict`; unknown keys raise TypeError."""
+        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+    @classmethod
+    def paper(cls) -> TreeConfig:
+        """The paper's simulated world (the defaults)."""
+        return cls()
+
+    @classmethod
+    def cluttered(cls) -> TreeConfig:
+        """The paper's tree in front of 1-3 background trees and two trellis wires."""
+        return cls(
+            background_tree_count_range=(1, 3),
+            trellis_wire_heights_m=(0.45, 0.65),
+        )
+
+    @classmethod
+    def hard(cls) -> TreeConfig:
+        """Clutter, more and thinner secondaries, pointing at or away from the camera."""
+        return replace(
+            cls.cluttered(),
+            secondary_count_range=(2, 8),
+            secondary_radius_scale_range=(0.4, 0.8),
+            yaw_mode="toward_or_away_camera",
+            yaw_spread_deg=30.0,
+        )
+
+
+def _require(condition: bool, name: str, problem: str) -> None:
+    if not condition:
+        raise ValueError(f"TreeConfig.{name} {problem}")
+
+
+def _check_range(name: str, value: tuple[float, float]) -> None:
+    _require(len(value) == 2, name, f"must be a (low, high) pair, got {value}")
+    _require(bool(np.all(np.isfinite(value))), name, f"must be finite, got {value}")
+    _require(value[0] <= value[1], name, f"is an inverted range (low > high): {value}")

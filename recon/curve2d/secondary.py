@@ -1,0 +1,83 @@
+"""Secondary curve candidates of the 2D curve fitting (``recon/curve2d/fit.py``, step 4).
+
+:func:`find_secondaries` searches the simple paths leaving each interior node of the primary path
+(undirected graph, primary edges removed), keeps the best-fitting candidate per starting edge and
+flags its samples that lie inside the primary's silhouette.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from recon.curve2d.path_search import SearchGraph, enumerate_paths, undirected_adjacency
+from recon.curve2d.types import (
+    MIN_FIT_PIXELS,
+    NEWTON_ITERATIONS,
+    Curve2D,
+    Curve2DConfig,
+    make_curve2d,
+)
+from recon.geometry.bezier_fit import fit_bezier
+
+
+def find_secondaries(
+    sg: SearchGraph, primary_path: tuple[int, ...], primary: Curve2D, config: Curve2DConfig
+) -> tuple[list[Curve2D], int, bool]:
+    """Secondary curves off the primary path: (curves, paths evaluated, truncated)."""
+    nodes = sg.path_nodes(primary_path)
+    primary_nodes = set(nodes)
+    adjacency = undirected_adjacency(sg, {h // 2 for h in primary_path})
+    budget, evaluated, truncated = config.max_secondary_paths, 0, False
+    found: list[Curve2D] = []
+    for junction in nodes[1:-1]:
+        for half_edge, other in adjacency[junction]:
+            if other in primary_nodes or budget == 0:
+                truncated |= budget == 0
+                continue
+            paths, cut = enumerate_paths(adjacency, [(half_edge,)], sg, primary_nodes, budget)
+            budget -= len(paths)
+            evaluated += len(paths)
+            truncated |= cut
+            best = _best_secondary(sg, paths, config)
+            if best is not None:
+                found.append(best)
+    return _flag_inside_primary(found, primary), evaluated, truncated
+
+
+def _best_secondary(
+    sg: SearchGraph, paths: list[tuple[int, ...]], config: Curve2DConfig
+) -> Curve2D | None:
+    """The path with most own-pixel inliers among those with a high inlier rate and a limited
+    bend, if its curve is long enough."""
+    best, best_score = None, 0.0
+    for path in paths:
+        pixels, radii = sg.path_pixels(path)
+        if len(pixels) < MIN_FIT_PIXELS:
+            continue
+        curve = fit_bezier(pixels)
+        dist = curve.closest_params(pixels, newton_iterations=NEWTON_ITERATIONS)[1]
+        inliers = dist <= config.inlier_threshold_px
+        score, fraction = float(inliers.sum()), float(inliers.mean())
+        if (
+            score > best_score
+            and fraction >= config.min_secondary_inlier_fraction
+            and curve.max_bend_angle_deg() <= config.max_secondary_bend_deg
+        ):
+            best, best_score = (curve, pixels, radii, score, fraction), score
+    if best is None or best[0].length() < config.min_secondary_length_px:
+        return None
+    return make_curve2d(*best, config)
+
+
+def _flag_inside_primary(secondaries: list[Curve2D], primary: Curve2D) -> list[Curve2D]:
+    """Mark secondary samples closer to the primary curve than the primary's radius there."""
+    if not secondaries:
+        return []
+    samples = np.concatenate([s.samples_px for s in secondaries])
+    t, dist = primary.curve.closest_params(samples)
+    inside = dist < np.interp(t, primary.sample_t, primary.radii_px)
+    splits = np.cumsum([len(s.samples_px) for s in secondaries])[:-1]
+    flags = np.split(inside, splits)
+    return [replace(s, inside_primary=f) for s, f in zip(secondaries, flags, strict=True)]

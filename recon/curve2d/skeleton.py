@@ -1,0 +1,174 @@
+"""From a binary branch mask to a skeleton graph with a radius per pixel (paper section IV-B).
+
+Steps: clean the mask (border band dropped, small holes filled), thin it to a one-pixel skeleton
+with the distance to the background as radius, then turn the skeleton into a graph whose nodes are
+endpoints and junctions and whose edges carry the ordered pixel path between them.
+
+The graph types (:class:`SkeletonGraph`, :class:`SkeletonEdge`) live in ``skeleton_graph.py``
+and the tracing of the skeleton pixels into a graph in
+``recon/curve2d/skeleton_trace.py``; this module holds the mask cleaning and the thinning.
+
+Skeleton methods (``SkeletonConfig.method``):
+
+* ``"skeletonize"`` (default): skimage's thinning plus OpenCV's 5x5 chamfer distance transform
+  (within ~2% of Euclidean), ~1.5-2 ms on a 320x240 branch mask (work is limited to the mask's
+  bounding box).
+* ``"medial_axis"``: the paper's medial axis with its exact Euclidean distances, ~20-30 ms;
+  spurrier, which the spur pruning handles.
+
+Two additions to the paper, both configurable: the interior is edge-replicated before thinning so
+that branches leaving the view keep a straight skeleton up to the border band, and short terminal
+spurs at junctions are pruned.
+
+All pixel coordinates are ``(u, v)`` = (column, row), as in ``recon.camera``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import cv2
+import numpy as np
+from skimage.morphology import medial_axis, skeletonize
+
+from recon.curve2d.skeleton_graph import SkeletonGraph
+from recon.curve2d.skeleton_trace import build_graph
+from recon.frame import as_binary_mask
+
+__all__ = ["SkeletonConfig", "extract_skeleton", "preprocess_mask"]
+
+# 5x5 chamfer distance transform: within ~2% of Euclidean and 4x faster than the exact one.
+_DT_MASK = cv2.DIST_MASK_5
+# Thinning bends a skeleton within ~1.5 radii of a cut end (reference: corner spurs ~sqrt(2) r).
+_END_ARTEFACT_RADII = 1.5
+_EXTENSION_MARGIN_PX = 2
+
+
+@dataclass(frozen=True)
+class SkeletonConfig:
+    """Mask cleaning and skeleton options.
+
+    Attributes:
+        border_px: Mask pixels closer than this to the image border are dropped
+            (reference.md, "Reconstruction pipeline": 10 px).
+        max_hole_area_px: Background holes smaller than this are filled (reference.md: 300 px).
+        method: ``"skeletonize"`` (fast, default) or ``"medial_axis"`` (the paper's).
+        radius_offset_px: Subtracted from the distance transform to get the radius: the distance
+            from a pixel centre to the nearest background pixel centre overestimates the
+            continuous half width by half a pixel.
+        spur_prune_factor: Terminal edges shorter than this times the junction radius are
+            boundary spurs (e.g. the two corner spurs where the border band cuts a branch) and are
+            removed, once; 0 disables. Ours: a corner spur is ~sqrt(2) radii long.
+        border_extension_px: Most edge-replicated margin added around the interior before
+            thinning (see :func:`extract_skeleton`); 0 thins the cut mask as the paper does. The
+            margin used is 1.5 radii of the widest branch crossing the interior's edge, capped
+            here (ours: enough for radii up to ~20 px).
+        medial_axis_seed: Seed of skimage's random tie-breaking in ``medial_axis`` (results are
+            reproducible for a given seed).
+    """
+
+    border_px: int = 10
+    max_hole_area_px: int = 300
+    method: Literal["skeletonize", "medial_axis"] = "skeletonize"
+    radius_offset_px: float = 0.5
+    spur_prune_factor: float = 1.5
+    border_extension_px: int = 32
+    medial_axis_seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.border_px < 0:
+            raise ValueError(f"border_px must be >= 0, got {self.border_px}")
+        if self.max_hole_area_px < 0:
+            raise ValueError(f"max_hole_area_px must be >= 0, got {self.max_hole_area_px}")
+        if self.method not in ("skeletonize", "medial_axis"):
+            raise ValueError(f"method must be 'skeletonize' or 'medial_axis', got {self.method!r}")
+        if not 0.0 <= self.radius_offset_px < 1.0:
+            raise ValueError(f"radius_offset_px must be in [0, 1), got {self.radius_offset_px}")
+        if self.spur_prune_factor < 0.0:
+            raise ValueError(f"spur_prune_factor must be >= 0, got {self.spur_prune_factor}")
+        if self.border_extension_px < 0:
+            raise ValueError(f"border_extension_px must be >= 0, got {self.border_extension_px}")
+
+
+def preprocess_mask(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()) -> np.ndarray:
+    """(H, W) bool mask with the border band cleared and holes under the size limit filled."""
+    mask = as_binary_mask(mask).copy()
+    b = config.border_px
+    if b > 0:
+        mask[:b], mask[-b:], mask[:, :b], mask[:, -b:] = False, False, False, False
+    crop, (r0, c0) = _padded_crop(mask)
+    if crop is None or config.max_hole_area_px == 0:
+        return mask
+    # Background components (4-connected, the complement of the 8-connected mask): label 0 is
+    # the mask itself, the one at the zero padding is the outside, any other is a hole.
+    n_labels, labels = cv2.connectedComponents((~crop).view(np.uint8), connectivity=4)
+    if n_labels > 2:
+        fill = np.bincount(labels.ravel(), minlength=n_labels) < config.max_hole_area_px
+        fill[0] = fill[labels[0, 0]] = False
+        if np.any(fill):
+            h, w = crop.shape
+            mask[r0 + 1 : r0 + h - 1, c0 + 1 : c0 + w - 1] |= fill[labels][1:-1, 1:-1]
+    return mask
+
+
+def _padded_crop(mask: np.ndarray) -> tuple[np.ndarray | None, tuple[int, int]]:
+    """The mask's bounding box with one pixel of zero padding, and its (row, col) offset."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0:
+        return None, (0, 0)
+    cols = np.flatnonzero(mask.any(axis=0))
+    crop = np.pad(mask[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1], 1)
+    return crop, (int(rows[0]) - 1, int(cols[0]) - 1)
+
+
+def extract_skeleton(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()) -> SkeletonGraph:
+    """Skeleton graph of a clean mask (see :func:`preprocess_mask`); the border band is ignored.
+
+    The interior (inside the border band) is extended by ``config.border_extension_px`` pixels of
+    edge replication before thinning, and the skeleton is cut back to the interior: a branch that
+    leaves the view then keeps a straight skeleton up to the band instead of bending into a
+    corner of the cut (which would drag the curve fit by up to a radius).
+    """
+    mask = as_binary_mask(mask)
+    b = config.border_px
+    inner = mask[b : mask.shape[0] - b, b : mask.shape[1] - b]
+    if inner.size == 0 or not inner.any():
+        return _empty_graph()
+    e = min(config.border_extension_px, _extension_needed_px(inner))
+    extended = cv2.copyMakeBorder(inner.view(np.uint8), e, e, e, e, cv2.BORDER_REPLICATE)
+    crop, (r0, c0) = _padded_crop(extended.view(bool))
+    if config.method == "medial_axis":
+        skel, dist = medial_axis(crop, return_distance=True, rng=config.medial_axis_seed)
+    else:
+        skel = skeletonize(crop)
+        dist = cv2.distanceTransform(crop.view(np.uint8), cv2.DIST_L2, _DT_MASK)
+    # Keep the interior part only: extended rows/cols [e, e + inner size) in crop coordinates.
+    skel[: max(e - r0, 0)] = False
+    skel[max(e + inner.shape[0] - r0, 0) :] = False
+    skel[:, : max(e - c0, 0)] = False
+    skel[:, max(e + inner.shape[1] - c0, 0) :] = False
+    rows, cols = np.divmod(np.flatnonzero(skel), skel.shape[1])  # faster than np.nonzero
+    radii = dist[rows, cols].astype(float) - config.radius_offset_px
+    pixels_uv = np.stack([cols + (c0 - e + b), rows + (r0 - e + b)], axis=1)
+    # Skeleton ends on the interior's outline are branches leaving the view, never spurs.
+    inner_rows, inner_cols = rows + (r0 - e), cols + (c0 - e)
+    at_cut = (inner_rows == 0) | (inner_rows == inner.shape[0] - 1)
+    at_cut |= (inner_cols == 0) | (inner_cols == inner.shape[1] - 1)
+    return build_graph(skel, rows, cols, pixels_uv, radii, at_cut, config.spur_prune_factor)
+
+
+def _extension_needed_px(inner: np.ndarray) -> int:
+    """Edge replication that moves end artefacts out of the interior: 1.5 radii of the widest
+    run of mask pixels along the interior's outer rows and columns, plus a margin."""
+    widest = 0
+    for line in (inner[0], inner[-1], inner[:, 0], inner[:, -1]):
+        edges = np.flatnonzero(np.diff(np.concatenate([[False], line, [False]])))
+        if len(edges):
+            widest = max(widest, int((edges[1::2] - edges[::2]).max()))
+    return math.ceil(_END_ARTEFACT_RADII * widest / 2.0) + _EXTENSION_MARGIN_PX if widest else 0
+
+
+def _empty_graph() -> SkeletonGraph:
+    return SkeletonGraph(np.zeros((0, 2), int), np.zeros(0), np.zeros((0, 2)), (), ())

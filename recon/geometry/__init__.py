@@ -1,0 +1,2 @@
+"""Geometry of the pipeline: cubic Bezier curves (evaluation, fitting, RANSAC) and multi-view
+triangulation."""

@@ -1,0 +1,247 @@
+"""Secondary branches: connection test, association of re-detections, trust and pruning.
+
+Each model secondary keeps the raw lifted points of every detection associated with it and is
+refitted from all of them, so that re-detections of one branch strengthen it instead of creating
+duplicates (a weakness of the paper's system, reference.md). A trust score (+1 when its projection
+lands on the mask, -1 when not; from the authors' code) deletes branches the masks stop supporting.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from recon.camera import project_points
+from recon.config import ModelerConfig
+from recon.frame import Frame
+from recon.geometry.bezier import CubicBezier
+from recon.geometry.bezier_fit import fit_bezier, ransac_fit_bezier
+from recon.model import BranchModel
+from recon.model3d.primary import robust_radius_profile
+
+
+@dataclass
+class SecondaryDetection:
+    """One frame's lifted secondary branch.
+
+    Attributes:
+        points: (K, 3) centre points in metres, world frame, ordered from the junction outward.
+        radii: (K,) radii in metres.
+    """
+
+    points: np.ndarray
+    radii: np.ndarray
+
+
+@dataclass
+class _Secondary:
+    branch_id: int
+    observations: np.ndarray  # (K, 3) raw lifted centre points
+    radii: np.ndarray  # (K,)
+    base_hint: np.ndarray  # (3,) point of the junction side, for ordering
+    detections: int = 1
+    trust: int = 0
+    model: BranchModel | None = None
+
+
+class SecondaryBranches:
+    """The set of model secondaries, updated once per Consistent iteration."""
+
+    def __init__(self, config: ModelerConfig, rng: np.random.Generator) -> None:
+        self.config = config
+        self.rng = rng
+        self._branches: list[_Secondary] = []
+        self._next_id = 1
+
+    def reset(self) -> None:
+        self._branches.clear()
+        self._next_id = 1
+
+    def models(self) -> list[BranchModel]:
+        """Reported secondaries: confirmed often enough and still trusted."""
+        return [
+            b.model
+            for b in self._branches
+            if b.model is not None and b.detections >= self.config.secondary_confirmations
+        ]
+
+    def add_detections(
+        self,
+        detections: list[SecondaryDetection],
+        primary: BranchModel | None,
+        camera_center: np.ndarray | None = None,
+    ) -> int:
+        """Associate each detection with a model branch or create a connected new one.
+
+        Args:
+            detections: This frame's lifted secondaries.
+            primary: The current primary (for the connection test of new branches).
+            camera_center: (3,) camera position (world); when given, detections seen end-on
+                (``secondary_min_view_angle_deg``) are dropped.
+
+        Returns:
+            Number of new branches created.
+        """
+        created = 0
+        for det in detections:
+            if len(det.points) < self.config.secondary_min_points:
+                continue
+            if camera_center is not None and self._seen_end_on(det.points, camera_center):
+                continue
+            target = self._associate(det)
+            if target is not None:
+                self._merge_observations(target, det.points, det.radii)
+                target.detections += 1
+                continue
+            if primary is None or not self._connects(det.points, primary.points):
+                continue
+            branch = _Secondary(self._next_id, det.points, det.radii, det.points[0].copy())
+            self._next_id += 1
+            self._refit(branch)
+            if branch.model is not None:
+                self._branches.append(branch)
+                created += 1
+        self._merge_duplicates()
+        return created
+
+    def update_trust(self, frame: Frame) -> None:
+        """+1 for each visible branch whose projection lands on the mask, -1 otherwise; prune."""
+        cfg = self.config
+        kept = []
+        for branch in self._branches:
+            if branch.model is None:
+                continue
+            pixels, depth = project_points(
+                branch.model.points, frame.T_world_camera, frame.intrinsics
+            )
+            visible = (depth > 0) & frame.intrinsics.in_image(pixels, cfg.image_margin_px)
+            if visible.sum() >= 2:
+                px = np.rint(pixels[visible]).astype(int)
+                on_mask = frame.mask[px[:, 1], px[:, 0]].mean()
+                branch.trust += 1 if on_mask >= 0.5 else -1
+                branch.model.trust = branch.trust
+            if branch.trust >= cfg.secondary_trust_min:
+                kept.append(branch)
+        self._branches = kept
+
+    # ----------------------------------------------------------------------------------------
+    def _associate(self, det: SecondaryDetection) -> _Secondary | None:
+        best, best_dist = None, np.inf
+        for branch in self._branches:
+            dist = _median_distance(det.points, branch.model.points)
+            if dist < self.config.secondary_merge_distance_m and dist < best_dist:
+                if _angle_deg(_direction(det.points), _direction(branch.model.points)) <= (
+                    self.config.secondary_merge_angle_deg
+                ):
+                    best, best_dist = branch, dist
+        return best
+
+    def _seen_end_on(self, points: np.ndarray, camera_center: np.ndarray) -> bool:
+        """The branch direction lies within ``secondary_min_view_angle_deg`` of the viewing ray."""
+        ray = points.mean(axis=0) - camera_center
+        angle = _angle_deg(_direction(points), ray / max(np.linalg.norm(ray), 1e-12))
+        return min(angle, 180.0 - angle) < self.config.secondary_min_view_angle_deg
+
+    def _connects(self, points: np.ndarray, primary_points: np.ndarray) -> bool:
+        """Paper IV: the ray back from the branch start must pass within 3 cm of the primary."""
+        cfg = self.config
+        start = points[0]
+        direction = points[min(len(points) - 1, 2)] - start
+        norm = np.linalg.norm(direction)
+        if norm < 1e-9:
+            return False
+        back = -direction / norm
+        rel = primary_points - start
+        s = np.clip(rel @ back, 0.0, cfg.connection_ray_length_m)
+        dist = np.linalg.norm(rel - s[:, None] * back, axis=1)
+        return bool(dist.min() <= cfg.connection_distance_m)
+
+    def _merge_observations(
+        self, branch: _Secondary, points: np.ndarray, radii: np.ndarray
+    ) -> None:
+        cap = self.config.secondary_max_observations
+        branch.observations = np.concatenate([branch.observations, points])[-cap:]
+        branch.radii = np.concatenate([branch.radii, radii])[-cap:]
+        self._refit(branch)
+
+    def _merge_duplicates(self) -> None:
+        merged = True
+        while merged:
+            merged = False
+            for i, a in enumerate(self._branches):
+                for b in self._branches[i + 1 :]:
+                    if _median_distance(b.model.points, a.model.points) < (
+                        self.config.secondary_merge_distance_m
+                    ) and _angle_deg(_direction(a.model.points), _direction(b.model.points)) <= (
+                        self.config.secondary_merge_angle_deg
+                    ):
+                        a.detections += b.detections
+                        a.trust = max(a.trust, b.trust)
+                        self._branches.remove(b)
+                        self._merge_observations(a, b.observations, b.radii)
+                        merged = True
+                        break
+                if merged:
+                    break
+
+    def _refit(self, branch: _Secondary) -> None:
+        """Fit a curve through all observations, ordered outward from the junction side."""
+        cfg = self.config
+        pts, radii = branch.observations, branch.radii
+        order = np.argsort(np.linalg.norm(pts - branch.base_hint, axis=1))
+        pts, radii = pts[order], radii[order]
+        curve: CubicBezier | None = None
+        keep = np.ones(len(pts), dtype=bool)
+        if len(pts) >= 6:
+            fit = ransac_fit_bezier(
+                pts,
+                inlier_threshold=cfg.ransac_inlier_m,
+                min_inlier_fraction=cfg.ransac_min_inlier_fraction,
+                rng=self.rng,
+                iterations=cfg.ransac_iterations,
+            )
+            if fit is not None:
+                curve, keep = fit.curve, fit.inliers
+        elif len(pts) >= 4:
+            curve = fit_bezier(pts)
+        if curve is None:
+            # Too few points for a cubic: the straight segment through the end points.
+            p0, p1 = pts[0], pts[-1]
+            curve = CubicBezier(np.linspace(p0, p1, 4))
+        t_in, _ = curve.closest_params(pts[keep])
+        t_lo, t_hi = float(t_in.min()), float(t_in.max())
+        if t_hi - t_lo <= 1e-6:
+            branch.model = None
+            return
+        ts = np.linspace(t_lo, t_hi, 200)
+        dense = curve(ts)
+        seg_len = float(np.linalg.norm(np.diff(dense, axis=0), axis=1).sum())
+        n = max(2, int(np.ceil(seg_len / cfg.secondary_sample_spacing_m)) + 1)
+        t_out = np.interp(
+            np.linspace(0, seg_len, n),
+            np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(dense, axis=0), axis=1))]),
+            ts,
+        )
+        samples = curve(t_out)
+        out_radii = robust_radius_profile(t_in, radii[keep], t_out)
+        branch.model = BranchModel(samples, out_radii, branch.branch_id, branch.trust)
+
+
+def _direction(points: np.ndarray) -> np.ndarray:
+    d = points[-1] - points[0]
+    n = np.linalg.norm(d)
+    return d / n if n > 0 else d
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip(np.dot(a, b), -1.0, 1.0))))
+
+
+def _median_distance(points: np.ndarray, reference: np.ndarray) -> float:
+    """Median distance (m) from each of ``points`` to the nearest of ``reference``."""
+    if len(points) == 0 or len(reference) == 0:
+        return np.inf
+    dist, _ = cKDTree(reference).query(points)
+    return float(np.median(dist))
