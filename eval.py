@@ -5,12 +5,14 @@ Usage::
     python eval.py --policies none periodic:22.5:1.5 periodic:45:1.5 periodic:22.5:2.5 \\
         periodic:45:2.5 --trees 60 --seed 0 --workers 2 --out results/NAME \\
         [--tracker lk|oracle] [--segmenter gt|noisy:mild|...] [--speed 0.025] \\
-        [--plot-trees 0 1 2] [--end-height 0.75] [--backend pool|ray] [--address ADDR]
+        [--plot-trees 0 1 2] [--end-height 0.75] [--backend pool|ray] [--address ADDR] \\
+        [--record DIR]
 
 Every policy scans the same trees (seeds SEED .. SEED+TREES-1). Each finished trial is saved at
 once under OUT/trials/, and re-running the same command resumes: saved trials are loaded, not
 re-run. OUT then holds summary.json, table.md, trials.csv, missed_vs_scan_time.png and one
-tree_SEED.png per plotted tree. See branch_gym/evaluation/ for the definitions.
+tree_SEED.png per plotted tree. See branch_gym/evaluation/ for the definitions. ``--record DIR``
+writes each trial run as a scan folder that ``python -m recon.replay`` reads (docs/replay.md).
 
 ``--backend ray`` runs the trials as Ray tasks (``pip install .[ray]``): on a private local Ray
 instance of --workers CPUs, or on the cluster at --address; the results are the same as the
@@ -19,16 +21,30 @@ default process pool's (docs/integrations/ray.md).
 
 from __future__ import annotations
 
-import argparse
-import logging
 import os
-import sys
-from pathlib import Path
 
-# One BLAS thread per process: scans are small and workers run side by side (workers inherit it).
+# One BLAS thread per process, before numpy loads: scans are small and workers run side by side
+# (workers inherit it).
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import argparse
+import logging
+import sys
+import traceback
+from pathlib import Path
+
+from tqdm import tqdm
+
+from branch_gym.evaluation.config import EvalConfig, TrialError
+from branch_gym.evaluation.pipeline import run_evaluation
+from branch_gym.evaluation.ray_backend import RayUnavailableError, import_ray
+from branch_gym.evaluation.report import failure_reasons, format_comparison
+from branch_gym.evaluation.runner import ConfigMismatchError
+from branch_gym.scan import ScanConfig
+
 EXIT_USAGE = 2
+EXIT_TRIAL_FAILED = 1
+ERROR_LOG = "error.log"  # under --out: the traceback of a trial that raised
 EXIT_INTERRUPTED = 130
 
 
@@ -73,6 +89,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--end-height", type=float, metavar="M", help="scan end height (m); lower for quick runs"
     )
     parser.add_argument(
+        "--record",
+        type=Path,
+        metavar="DIR",
+        help="also record every trial run as a scan folder DIR/POLICY/seed_SEED "
+        "(replay with python -m recon.replay; docs/replay.md)",
+    )
+    parser.add_argument(
         "--plot-trees",
         type=int,
         nargs="*",
@@ -84,15 +107,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
-    # Imported here, after OMP_NUM_THREADS is set above and before numpy reads it.
-    from tqdm import tqdm
-
-    from branch_gym.evaluation.pipeline import run_evaluation
-    from branch_gym.evaluation.ray_backend import RayUnavailableError, import_ray
-    from branch_gym.evaluation.report import failure_reasons, format_comparison
-    from branch_gym.evaluation.runner import ConfigMismatchError, EvalConfig
-    from branch_gym.scan import ScanConfig
-
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -112,6 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             scan,
             backend=args.backend,
             address=args.address,
+            record_dir=args.record,
         )
     except (ValueError, TypeError) as exc:
         parser.error(str(exc))
@@ -137,6 +152,14 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigMismatchError, ValueError, ConnectionError) as exc:  # Connection: Ray address
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    except TrialError as exc:  # one line naming the trial and the cause; the traceback in a file
+        if bar is not None:
+            bar.close()  # the message goes on a line of its own
+        log = args.out / ERROR_LOG
+        log.parent.mkdir(parents=True, exist_ok=True)
+        log.write_text("".join(traceback.format_exception(exc)))
+        print(f"error: {exc} (traceback in {log})", file=sys.stderr)
+        return EXIT_TRIAL_FAILED
     except KeyboardInterrupt:
         print(
             f"\ninterrupted: finished trials are saved in {args.out / 'trials'}; "

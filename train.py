@@ -16,22 +16,25 @@ evaluation trees and eval.py's trees never overlap (branch_gym/training/seeds.py
 
 from __future__ import annotations
 
-import argparse
-import logging
 import os
-import sys
-from pathlib import Path
 
 # One BLAS thread per process (the env workers inherit it): set before numpy / torch load.
 os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from branch_gym import ENV_ID, ENV_IDS
+from branch_gym.training.config import PPOConfig, TrainConfig
+from branch_gym.training.train import train
 
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from branch_gym import ENV_ID, ENV_IDS
-
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n", 1)[0],
         epilog="A killed run loses at most --checkpoint-every steps: re-run the same command "
@@ -76,10 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def config_from_args(args: argparse.Namespace):  # -> TrainConfig (imported lazily)
+def config_from_args(args: argparse.Namespace) -> TrainConfig:
     """The TrainConfig of the parsed arguments (unset options keep the config defaults)."""
-    from branch_gym.training.config import PPOConfig, TrainConfig
-
     ppo = {
         "n_steps": args.n_steps,
         "batch_size": args.batch_size,
@@ -116,8 +117,6 @@ def config_from_args(args: argparse.Namespace):  # -> TrainConfig (imported lazi
 
 def main(argv: list[str] | None = None) -> int:
     """Run the command line; returns the exit status."""
-    from branch_gym.training.train import train
-
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")

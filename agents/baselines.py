@@ -1,17 +1,18 @@
-"""Baseline rotation agents for :class:`branch_gym.env.BranchScanEnv`, with SB3's ``predict``.
+"""The paper's rotation policies as agents for :class:`branch_gym.env.BranchScanEnv`.
 
-They act through the same ``predict(obs, state=None, episode_start=None, deterministic=True) ->
-(action, state)`` signature as stable-baselines3 models, read the observation vector by field
-name (:class:`branch_gym.env.layout.VectorField`), and accept single or batched (vector env)
-observations, Dict or flattened. They make the same decisions as :mod:`agents.rotation`'s
-policies on the same scan:
+They act through stable-baselines3's ``predict(obs, state=None, episode_start=None,
+deterministic=True) -> (action, state)`` (:class:`agents.protocol.Agent`), read the observation
+vector by field name (:class:`branch_gym.env.layout.VectorField`), and accept single or batched
+(vector env) observations, Dict or flattened:
 
 =========================  =================================  ==========================
-agent                      decision                           rotation.py policy
+agent                      decision                           spec (``eval.py``)
 =========================  =================================  ==========================
-``NoRotationAgent()``      always angle 0                     ``none``
+``NoRotationAgent()``      always angle 0 (paper Table I,     ``none``
+                           column 0 / 0)
 ``PeriodicAgent(a, f)``    +a, 0, -a, 0, ... every 1 / f      ``periodic:a:f``
-                           vertical FoVs of travel
+                           vertical FoVs of travel (paper
+                           section V)
 =========================  =================================  ==========================
 
 A new episode starts (the periodic phase resets) where ``episode_start`` is True, and on an
@@ -26,11 +27,43 @@ from typing import Any
 
 import numpy as np
 
+from branch_gym.control import ROTATION_TOLERANCE_DEG
 from branch_gym.env.layout import OUTCOME_FIELDS, THETA_MAX_DEG, VectorField, vector_part
 
+NO_ROTATION_SPEC = "none"
+PERIODIC_KIND = "periodic"
 _NO_PHASE = -1  # before the first rotation of an episode
-# Targets this close to the current angle hold it (deg; ScanConfig.rotation_tolerance_deg).
-_HOLD_TOLERANCE_DEG = 0.5
+
+
+def parse_periodic_spec(spec: str) -> tuple[float, float] | None:
+    """(angle_deg, frequency) of a ``periodic:ANGLE:FREQ`` spec; None for another kind of spec.
+
+    Raises:
+        ValueError: a malformed ``periodic`` spec or bad parameters (naming the valid form).
+    """
+    kind, *args = spec.split(":")
+    if kind != PERIODIC_KIND:
+        return None
+    try:
+        angle_deg, frequency = (float(arg) for arg in args)
+    except ValueError:
+        raise ValueError(
+            f"malformed policy spec {spec!r}: expected 'periodic:ANGLE_DEG:FREQ' "
+            "(e.g. 'periodic:22.5:1.5')"
+        ) from None
+    check_periodic(angle_deg, frequency, THETA_MAX_DEG)
+    return angle_deg, frequency
+
+
+def check_periodic(angle_deg: float, frequency: float, theta_max_deg: float) -> None:
+    """Raise a ValueError unless 0 < angle <= theta_max and the frequency is positive."""
+    if not (math.isfinite(angle_deg) and 0 < angle_deg <= theta_max_deg):
+        raise ValueError(
+            f"periodic rotation angle_deg must be in (0, theta_max_deg={theta_max_deg}], "
+            f"got {angle_deg}"
+        )
+    if not (math.isfinite(frequency) and frequency > 0):
+        raise ValueError(f"periodic rotation frequency must be positive, got {frequency}")
 
 
 class BaselineAgent:
@@ -42,6 +75,8 @@ class BaselineAgent:
             indices into it); None for a continuous env.
         trigger_angles_deg: The env's ``trigger_angles_deg`` for a trigger env (hold, or advance
             the rotation cycle: the agent's cycle must be the env's +theta, 0, -theta, 0).
+        hold_tolerance_deg: The env scan's ``rotation_tolerance_deg``: targets this close to
+            the current angle hold it.
     """
 
     def __init__(
@@ -49,6 +84,7 @@ class BaselineAgent:
         theta_max_deg: float = THETA_MAX_DEG,
         action_angles_deg: tuple[float, ...] | None = None,
         trigger_angles_deg: tuple[float, ...] | None = None,
+        hold_tolerance_deg: float = ROTATION_TOLERANCE_DEG,
     ) -> None:
         if not (math.isfinite(theta_max_deg) and theta_max_deg > 0):
             raise ValueError(f"theta_max_deg must be positive, got {theta_max_deg}")
@@ -61,6 +97,7 @@ class BaselineAgent:
         self.trigger_angles_deg = (
             None if trigger_angles_deg is None else tuple(float(a) for a in trigger_angles_deg)
         )
+        self.hold_tolerance_deg = float(hold_tolerance_deg)
 
     @classmethod
     def for_env(cls, env: Any, *args: Any, **kwargs: Any) -> BaselineAgent:
@@ -73,6 +110,7 @@ class BaselineAgent:
             theta_max_deg=config.theta_max_deg,
             action_angles_deg=config.discrete_angles_deg if discrete else None,
             trigger_angles_deg=config.trigger_angles_deg if trigger else None,
+            hold_tolerance_deg=config.scan.rotation_tolerance_deg,
             **kwargs,
         )
 
@@ -121,12 +159,12 @@ class BaselineAgent:
         actions = np.zeros(len(angles_deg), np.int64)
         thetas = np.asarray(self.trigger_angles_deg)
         for i, (target, current) in enumerate(zip(angles_deg, current_deg, strict=True)):
-            if abs(target - current) <= _HOLD_TOLERANCE_DEG:
+            if abs(target - current) <= self.hold_tolerance_deg:
                 continue
-            if abs(target) <= _HOLD_TOLERANCE_DEG:  # back to 0: any trigger does it
+            if abs(target) <= self.hold_tolerance_deg:  # back to 0: any trigger does it
                 actions[i] = 1
                 continue
-            match = np.flatnonzero(np.abs(thetas - abs(target)) <= _HOLD_TOLERANCE_DEG)
+            match = np.flatnonzero(np.abs(thetas - abs(target)) <= self.hold_tolerance_deg)
             if len(match) == 0:
                 raise ValueError(
                     f"target angle {target} deg is not a trigger angle {self.trigger_angles_deg}"
@@ -136,7 +174,7 @@ class BaselineAgent:
 
 
 class NoRotationAgent(BaselineAgent):
-    """Never rotate (the paper's baseline; :class:`agents.rotation.NoRotation`)."""
+    """Never rotate: scan straight up the branch (the paper's baseline)."""
 
     def _angles_deg(
         self, vectors: np.ndarray, starts: np.ndarray, state: Any
@@ -145,7 +183,7 @@ class NoRotationAgent(BaselineAgent):
 
 
 class PeriodicAgent(BaselineAgent):
-    """The paper's periodic rotation (:class:`agents.rotation.PeriodicRotation`) as an agent.
+    """The paper's periodic rotation (section V): +angle, 0, -angle, 0, ... every FoV / frequency.
 
     Every ``1 / frequency`` vertical FoVs of travel since the last rotation the target steps
     through +angle, 0, -angle, 0, ... The phase of each batch entry is the agent's state: it is
@@ -158,6 +196,7 @@ class PeriodicAgent(BaselineAgent):
         action_angles_deg: The env's ``discrete_angles_deg`` (discrete env), holding 0 and
             +-angle; None for a continuous env.
         trigger_angles_deg: The env's ``trigger_angles_deg`` (trigger env), holding angle.
+        hold_tolerance_deg: The env scan's ``rotation_tolerance_deg``.
     """
 
     def __init__(
@@ -167,14 +206,10 @@ class PeriodicAgent(BaselineAgent):
         theta_max_deg: float = THETA_MAX_DEG,
         action_angles_deg: tuple[float, ...] | None = None,
         trigger_angles_deg: tuple[float, ...] | None = None,
+        hold_tolerance_deg: float = ROTATION_TOLERANCE_DEG,
     ) -> None:
-        super().__init__(theta_max_deg, action_angles_deg, trigger_angles_deg)
-        if not (math.isfinite(angle_deg) and 0 < angle_deg <= self.theta_max_deg):
-            raise ValueError(
-                f"angle_deg must be in (0, theta_max_deg={self.theta_max_deg}], got {angle_deg}"
-            )
-        if not (math.isfinite(frequency) and frequency > 0):
-            raise ValueError(f"frequency must be positive, got {frequency}")
+        super().__init__(theta_max_deg, action_angles_deg, trigger_angles_deg, hold_tolerance_deg)
+        check_periodic(angle_deg, frequency, self.theta_max_deg)
         self.cycle_deg = np.array([angle_deg, 0.0, -angle_deg, 0.0])
         if self.action_angles_deg is not None and not set(self.cycle_deg) <= set(
             self.action_angles_deg
@@ -216,33 +251,3 @@ def _env_config(env: Any) -> Any:
     if get_attr is not None:
         return get_attr("config")[0]
     raise ValueError(f"{env!r} is not a BranchScanEnv (no EnvConfig found)")
-
-
-def make_agent(spec: str, env: Any) -> Any:
-    """The agent of a policy spec for ``env``.
-
-    Specs: the rotation policies ("none", "periodic:ANGLE:FREQ"), "disagreement[:ANGLE]"
-    (:mod:`agents.disagreement`) and "ppo:PATH" (a trained model,
-    :func:`branch_gym.training.policy.load_policy`).
-
-    Raises:
-        ValueError: an unknown or malformed spec (see :func:`agents.rotation.make_policy`), or a
-            model that does not fit ``env``.
-        FileNotFoundError: a "ppo:" model file that does not exist.
-    """
-    from agents.rotation import NoRotation, PeriodicRotation, make_policy
-
-    if spec.startswith("ppo:"):
-        from branch_gym.training.policy import check_ppo_spec, load_policy
-
-        return load_policy(check_ppo_spec(spec), env)
-    if spec.split(":")[0] == "disagreement":
-        from agents.disagreement import DisagreementAgent, parse_disagreement_spec
-
-        return DisagreementAgent.for_env(env, parse_disagreement_spec(spec))
-    policy = make_policy(spec)
-    if isinstance(policy, NoRotation):
-        return NoRotationAgent.for_env(env)
-    if isinstance(policy, PeriodicRotation):
-        return PeriodicAgent.for_env(env, policy.angle_deg, policy.frequency)
-    raise ValueError(f"no env agent for policy spec {spec!r}")

@@ -14,7 +14,7 @@ observation vector says (:class:`branch_gym.env.layout.VectorField`):
   modeler has had iterations to triangulate what it shows) it rotates back to 0.
 
 A clean scan (consistent iterations, every candidate explained) never rotates. Spec (as
-``agents.baselines.make_agent`` and ``eval.py --policies`` take it): ``disagreement`` or
+``agents.factory.make_agent`` and ``eval.py --policies`` take it): ``disagreement`` or
 ``disagreement:ANGLE``.
 """
 
@@ -27,11 +27,10 @@ from typing import Any
 import numpy as np
 
 from agents.baselines import BaselineAgent
+from branch_gym.control import ROTATION_TOLERANCE_DEG
 from branch_gym.env.layout import THETA_MAX_DEG, VectorField
 
 SPEC_KIND = "disagreement"
-# Current angles closer to 0 than this count as the home view (ScanConfig.rotation_tolerance_deg).
-HOME_TOLERANCE_DEG = 0.5
 _STREAK, _SIGN = 0, 1  # columns of the agent's per-entry state
 
 
@@ -112,6 +111,8 @@ class DisagreementAgent(BaselineAgent):
         action_angles_deg: The env's ``discrete_angles_deg`` (discrete env), holding 0 and
             +-angle; None for a continuous env.
         trigger_angles_deg: The env's ``trigger_angles_deg`` (trigger env), holding angle.
+        hold_tolerance_deg: The env scan's ``rotation_tolerance_deg``: current angles closer
+            to 0 than this count as the home view.
     """
 
     def __init__(
@@ -120,8 +121,9 @@ class DisagreementAgent(BaselineAgent):
         theta_max_deg: float = THETA_MAX_DEG,
         action_angles_deg: tuple[float, ...] | None = None,
         trigger_angles_deg: tuple[float, ...] | None = None,
+        hold_tolerance_deg: float = ROTATION_TOLERANCE_DEG,
     ) -> None:
-        super().__init__(theta_max_deg, action_angles_deg, trigger_angles_deg)
+        super().__init__(theta_max_deg, action_angles_deg, trigger_angles_deg, hold_tolerance_deg)
         self.config = config or DisagreementConfig()
         angle = self.config.angle_deg
         if angle > self.theta_max_deg:
@@ -150,7 +152,7 @@ class DisagreementAgent(BaselineAgent):
         config = self.config
         current_deg = vectors[:, VectorField.ANGLE] * self.theta_max_deg
         travel = vectors[:, VectorField.TRAVEL_FOV]
-        rotated = np.abs(current_deg) > HOME_TOLERANCE_DEG
+        rotated = np.abs(current_deg) > self.hold_tolerance_deg
         evidence = vectors[:, VectorField.UNCONFIRMED_CANDIDATES] > 0
         if config.use_outcomes:
             evidence |= vectors[:, VectorField.OUTCOME_INCONSISTENT] > 0

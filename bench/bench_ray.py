@@ -23,7 +23,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from branch_gym.evaluation.runner import EvalConfig, run_trials
+from branch_gym.evaluation.config import EvalConfig
+from branch_gym.evaluation.ray_backend import init_local
+from branch_gym.evaluation.runner import run_trials
 from branch_gym.scan import ScanConfig
 
 logger = logging.getLogger(__name__)
@@ -49,8 +51,6 @@ def run() -> dict[str, float]:
     except ImportError:
         logger.warning("bench_ray: Ray is not installed (pip install '.[ray]'): skipped")
         return {}
-    from branch_gym.evaluation.ray_backend import init_local
-
     pool = EvalConfig(POLICIES, TREES, workers=WORKERS, scan=SCAN)
     on_ray = EvalConfig(POLICIES, TREES, workers=WORKERS, scan=SCAN, backend="ray")
     trials = len(pool.keys)

@@ -11,17 +11,18 @@ import time
 
 import numpy as np
 
-from branch_gym.scan import ScanConfig, run_scan
+from branch_gym.evaluation.episodes import run_trial
+from branch_gym.scan import ScanConfig
 
 SEEDS = (0, 1, 2, 3, 4)
 
 
 def run() -> dict[str, float]:
     config = ScanConfig()
-    run_scan(100, "none", config)  # warm-up: process start, first world, caches
+    run_trial(100, "none", config)  # warm-up: process start, first world, caches
     seconds = []
     for seed in SEEDS:
         start = time.perf_counter()
-        run_scan(seed, "none", config)
+        run_trial(seed, "none", config)
         seconds.append(time.perf_counter() - start)
     return {"scan_s": float(np.median(seconds))}

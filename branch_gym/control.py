@@ -6,18 +6,30 @@ centerline tangent there (pointing up the image). Errors are normalised (referen
 authors' gains k_u = k_z = 1 act on normalised errors). Before any model exists (or when none of
 it is in view) the camera moves straight up. A small orientation term keeps the camera level
 (image up = world up), which the paper's scan assumes and which numeric integration would drift.
+
+Rotation (paper section V) is motion too: :class:`OrbitMove` turns the camera on a circle about the
+world-vertical axis through the followed branch point, at the set speed, one control step at a time.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, fields
 
 import numpy as np
 
+from branch_gym.sim.robot.motion import orbit_camera_twist
 from recon.camera import CameraIntrinsics, invert_pose, project_points, transform_points
 from recon.model import BranchModel
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])
+# Target angles closer than this to the current one are no move (deg; our choice: well below the
+# paper's smallest rotation, 22.5 deg, and above the drift of the orbit integration).
+ROTATION_TOLERANCE_DEG = 0.5
+# Smallest orbit radius (m): guards the yaw rate when the camera sits on the pivot axis.
+_MIN_ORBIT_RADIUS_M = 1e-3
+# An orbit is complete when less than this is left to turn (rad).
+_ORBIT_DONE_RAD = 1e-6
 
 
 @dataclass(frozen=True)
@@ -127,3 +139,65 @@ class PrimaryBranchController:
         down = R_world_camera[:, 1]
         axis = np.cross(down, -WORLD_UP)
         return self.config.k_level_per_s * axis
+
+
+def heading_rad(T_world_camera: np.ndarray) -> float:
+    """Yaw of the optical axis about world z (rad), 0 along +y (the home view direction)."""
+    axis = T_world_camera[:3, 2]
+    return math.atan2(-axis[0], axis[1])
+
+
+class OrbitMove:
+    """One rotation: the camera orbits the world-vertical axis through the followed branch point.
+
+    The pivot is the primary model point the controller looks at (or, without a model in view,
+    the point ``z_target`` ahead on the optical axis), at camera height. The yaw rate makes the
+    camera travel at ``speed_mps`` along the circle. Drive it with :meth:`command` (the twist and
+    duration of the next control step) and :meth:`advance` (after the robot moved).
+
+    Args:
+        controller: The follow controller (look-at point, z_target).
+        primary: The 3D primary model, or None.
+        T_world_camera: (4, 4) camera pose when the rotation starts.
+        turn_deg: Signed rotation still to do (deg): target angle minus current angle.
+        speed_mps: Camera speed along the circle (m/s).
+    """
+
+    def __init__(
+        self,
+        controller: PrimaryBranchController,
+        primary: BranchModel | None,
+        T_world_camera: np.ndarray,
+        turn_deg: float,
+        speed_mps: float,
+    ) -> None:
+        found = controller.look_at_point(primary, T_world_camera)
+        if found is not None:
+            pivot = primary.points[found[2]].copy()
+        else:  # no model in view: pivot z_target ahead on the optical axis
+            pivot = T_world_camera[:3, 3] + T_world_camera[:3, 2] * controller.config.z_target_m
+        pivot[2] = T_world_camera[2, 3]
+        self.pivot_world_m = pivot
+        radius_m = max(
+            float(np.linalg.norm(T_world_camera[:2, 3] - pivot[:2])), _MIN_ORBIT_RADIUS_M
+        )
+        self.remaining_rad = math.radians(turn_deg)
+        self.yaw_rate_radps = math.copysign(speed_mps / radius_m, self.remaining_rad)
+        self._heading_rad = heading_rad(T_world_camera)
+
+    @property
+    def finished(self) -> bool:
+        return abs(self.remaining_rad) <= _ORBIT_DONE_RAD
+
+    def command(self, T_world_camera: np.ndarray, control_dt_s: float) -> tuple[np.ndarray, float]:
+        """(6,) camera twist and the duration (s) of the next step: at most ``control_dt_s``."""
+        dt_s = min(control_dt_s, abs(self.remaining_rad / self.yaw_rate_radps))
+        return orbit_camera_twist(T_world_camera, self.pivot_world_m, self.yaw_rate_radps), dt_s
+
+    def advance(self, T_world_camera: np.ndarray) -> float:
+        """Account for the robot's move; returns the yaw actually turned (deg)."""
+        new_heading = heading_rad(T_world_camera)
+        turned = math.remainder(new_heading - self._heading_rad, math.tau)
+        self._heading_rad = new_heading
+        self.remaining_rad -= turned
+        return math.degrees(turned)

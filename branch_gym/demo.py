@@ -12,10 +12,27 @@ Usage: ``python -m branch_gym.demo [--trees N] [--out DIR] [--workers K]``
 
 from __future__ import annotations
 
+import os
+
+# One BLAS thread per process before numpy and torch load: scans are small, workers run in parallel.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 import argparse
 import logging
-import os
 from pathlib import Path
+
+import cv2
+import numpy as np
+from gymnasium.wrappers import RecordVideo
+from tqdm import tqdm
+
+from agents.factory import make_agent, spec_action_type
+from branch_gym.env import BranchScanEnv
+from branch_gym.evaluation.config import EvalConfig
+from branch_gym.evaluation.episodes import run_episode
+from branch_gym.evaluation.pipeline import run_evaluation
+from branch_gym.evaluation.report import format_comparison
+from branch_gym.sim.world import World
 
 # The trained policy shipped with the repository (README, "Learned rotation policies"); the
 # demo runs from the repository root (make demo).
@@ -26,13 +43,7 @@ DEMO_TREES = 4
 
 def _video(out: Path, seed: int, policy: str) -> Path:
     """An MP4 of one scan played by ``policy``: the camera image with the pipeline overlaid."""
-    from gymnasium.wrappers import RecordVideo
-
-    from agents.baselines import make_agent
-    from branch_gym.env import BranchScanEnv
-    from branch_gym.evaluation.env_trial import policy_action_type
-
-    env = BranchScanEnv(render_mode="rgb_array", action_type=policy_action_type(policy))
+    env = BranchScanEnv(render_mode="rgb_array", action_type=spec_action_type(policy))
     agent = make_agent(policy, env)
     folder = out / "video"
     recorder = RecordVideo(
@@ -40,12 +51,7 @@ def _video(out: Path, seed: int, policy: str) -> Path:
         disable_logger=True,
     )  # fmt: skip
     try:
-        obs, _ = recorder.reset(seed=seed)
-        done, start = False, True
-        while not done:
-            action, _ = agent.predict(obs, episode_start=start)
-            obs, _, terminated, truncated, _ = recorder.step(action)
-            done, start = terminated or truncated, False
+        run_episode(agent, recorder, seed, policy)
     finally:
         recorder.close()
     return next(folder.glob(f"scan_tree{seed}*.mp4"))
@@ -53,11 +59,6 @@ def _video(out: Path, seed: int, policy: str) -> Path:
 
 def _snapshot(out: Path, seed: int) -> Path:
     """Camera image and third-person view of the first demo tree at its home pose."""
-    import cv2
-    import numpy as np
-
-    from branch_gym.sim.world import World
-
     world = World()
     try:
         world.reset(seed)
@@ -73,20 +74,12 @@ def _snapshot(out: Path, seed: int) -> Path:
 
 
 def main(argv: list[str] | None = None) -> None:
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--trees", type=int, default=DEMO_TREES)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("results/demo"))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-
-    from tqdm import tqdm
-
-    from branch_gym.evaluation.pipeline import run_evaluation
-    from branch_gym.evaluation.report import format_comparison
-    from branch_gym.evaluation.runner import EvalConfig
-
     config = EvalConfig(policies=DEMO_POLICIES, trees=args.trees, workers=args.workers)
     print(f"Scanning {args.trees} trees x {len(DEMO_POLICIES)} policies {DEMO_POLICIES} ...")
     with tqdm(total=len(config.keys), unit="scan") as bar:

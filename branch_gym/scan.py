@@ -1,10 +1,11 @@
-"""The one scan loop: world, perception (recon) and the follow controller, advanced together.
+"""The one scan loop: world, sensing, the modeler (recon) and the follow controller, together.
 
-:class:`ScanSession` is what both the Gymnasium environment and ``eval.py`` drive. One
-:meth:`ScanSession.step` takes a target rotation angle, rotates the camera about the branch if the
-angle changed (rotating is motion at the set speed: it costs scan time), then follows the primary
-branch until the modeler has run its next iteration. :func:`run_scan` runs a whole scan with a
-rotation policy and scores it against the ground truth.
+:class:`ScanSession` is what the Gymnasium environment drives (and through it ``eval.py``,
+training and the demo). One :meth:`ScanSession.step` takes a target rotation angle, rotates the
+camera about the branch if the angle changed (:class:`branch_gym.control.OrbitMove`: rotating is
+motion at the set speed and costs scan time), then follows the primary branch until the modeler
+has run its next iteration. Frames come from :class:`branch_gym.sensing.Sensor`; scoring against
+the ground truth is :func:`branch_gym.scoring.score_scan`.
 """
 
 from __future__ import annotations
@@ -12,28 +13,27 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from branch_gym.control import FollowControllerConfig, PrimaryBranchController
-from branch_gym.sim.scene.camera_spec import CameraSpec
+from branch_gym.control import (
+    ROTATION_TOLERANCE_DEG,
+    FollowControllerConfig,
+    OrbitMove,
+    PrimaryBranchController,
+)
+from branch_gym.sensing import TRACKERS, Sensor, make_tracker
 from branch_gym.sim.segmentation import make_segmenter
 from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.world import World, WorldConfig
-from recon.camera import CameraIntrinsics
 from recon.config import ModelerConfig
 from recon.frame import Frame
-from recon.metrics import TreeMetrics, evaluate
 from recon.model import TreeModel
 from recon.modeler import IterationReport, Modeler, Outcome
-from recon.tracking import DepthOracleTracker, LucasKanadeTracker, PointTracker
 
 logger = logging.getLogger(__name__)
-
-TRACKERS = ("lk", "oracle")
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,7 @@ class ScanConfig:
     segmenter: str = "gt"
     lost_branch_iterations: int = 20
     max_scan_time_s: float = 100.0
-    rotation_tolerance_deg: float = 0.5
+    rotation_tolerance_deg: float = ROTATION_TOLERANCE_DEG
     render_tracking_frames: bool = True
     controller: FollowControllerConfig = field(default_factory=FollowControllerConfig)
     modeler: ModelerConfig = field(default_factory=ModelerConfig)
@@ -98,20 +98,6 @@ class ScanConfig:
         return replace(self, **changes)
 
 
-def intrinsics_from_spec(spec: CameraSpec) -> CameraIntrinsics:
-    """recon's intrinsics for the simulator's camera."""
-    return CameraIntrinsics(spec.width, spec.height, spec.fx, spec.fy, spec.cx, spec.cy)
-
-
-def make_tracker(name: str) -> PointTracker:
-    """ "lk" or "oracle"."""
-    if name == "lk":
-        return LucasKanadeTracker()
-    if name == "oracle":
-        return DepthOracleTracker()
-    raise ValueError(f"unknown tracker {name!r}: expected one of {TRACKERS}")
-
-
 @dataclass
 class StepResult:
     """What one :meth:`ScanSession.step` did.
@@ -133,9 +119,9 @@ class ScanSession:
     def __init__(self, config: ScanConfig | None = None) -> None:
         self.config = config or ScanConfig()
         self.world = World(self.config.world)
-        self.intrinsics = intrinsics_from_spec(self.config.world.camera)
+        self.sensor = Sensor(self.world, self.config.segmenter)
+        self.intrinsics = self.sensor.intrinsics
         self.modeler = Modeler(make_tracker(self.config.tracker), self.config.modeler)
-        self.segmenter = make_segmenter(self.config.segmenter)
         controller_config = replace(self.config.controller, speed_mps=self.config.speed_mps)
         self.controller = PrimaryBranchController(controller_config, self.intrinsics)
         self.vertical_fov_m = self.intrinsics.vertical_fov_length_m(controller_config.z_target_m)
@@ -148,7 +134,7 @@ class ScanSession:
         """Start a scan of the tree of ``seed`` from the home pose."""
         self.tree = self.world.reset(seed, tree)
         self.modeler.reset(seed)
-        self._segment_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
+        self.sensor.reset(seed)
         self.scan_time_s = 0.0
         self.angle_deg = 0.0
         self.rotations = 0
@@ -158,7 +144,7 @@ class ScanSession:
         self.reports: list[IterationReport] = []
         self._non_consistent_streak = 0
         self._rotation_end_height_m = self.world.T_world_camera[2, 3]
-        self._wall_start = time.perf_counter()
+        self.wall_start_s = time.perf_counter()  # wall clock, for ScanResult.wall_time_s
         self._observe()
         return self.tree
 
@@ -208,29 +194,18 @@ class ScanSession:
 
     def _rotate_to(self, target_angle_deg: float) -> None:
         """Orbit the camera about the world-vertical axis through the followed branch point."""
-        from branch_gym.sim.robot.motion import orbit_camera_twist
-
-        T = self.world.T_world_camera
-        found = self.controller.look_at_point(self.model.primary, T)
-        if found is not None:
-            pivot = self.model.primary.points[found[2]].copy()
-        else:  # no model in view: pivot z_target ahead on the optical axis
-            pivot = T[:3, 3] + T[:3, 2] * self.controller.config.z_target_m
-        pivot[2] = T[2, 3]
-        radius_m = max(float(np.linalg.norm(T[:2, 3] - pivot[:2])), 1e-3)
-        remaining = math.radians(target_angle_deg - self.angle_deg)
-        yaw_rate = math.copysign(self.config.speed_mps / radius_m, remaining)
-        heading = _heading_rad(T)
-        while not self.done and abs(remaining) > 1e-6:
-            dt = min(self.config.control_dt_s, abs(remaining / yaw_rate))
-            twist = orbit_camera_twist(self.world.T_world_camera, pivot, yaw_rate)
-            if not self._move(twist, dt):
+        orbit = OrbitMove(
+            self.controller,
+            self.model.primary,
+            self.world.T_world_camera,
+            target_angle_deg - self.angle_deg,
+            self.config.speed_mps,
+        )
+        while not self.done and not orbit.finished:
+            twist, dt_s = orbit.command(self.world.T_world_camera, self.config.control_dt_s)
+            if not self._move(twist, dt_s):
                 break
-            new_heading = _heading_rad(self.world.T_world_camera)
-            turned = math.remainder(new_heading - heading, math.tau)
-            heading = new_heading
-            remaining -= turned
-            self.angle_deg += math.degrees(turned)
+            self.angle_deg += orbit.advance(self.world.T_world_camera)
         self.rotations += 1
         self._rotation_end_height_m = self.camera_height_m
 
@@ -256,12 +231,9 @@ class ScanSession:
         if not self.modeler.wants_frame(T):
             return
         if not self.config.render_tracking_frames and not self.modeler.iteration_due(T):
-            self._feed(Frame.pose_only(T, self.intrinsics, self.scan_time_s))
+            self._feed(self.sensor.pose_only(self.scan_time_s))
             return
-        images = self.world.render()
-        mask = self.segmenter.segment(images.rgb, images.labels, self._segment_rng)
-        frame = Frame(images.rgb, mask, T, self.intrinsics, self.scan_time_s, images.depth_m)
-        report = self._feed(frame)
+        report = self._feed(self.sensor.capture(self.scan_time_s))
         if report is None:
             return
         self.reports.append(report)
@@ -282,110 +254,3 @@ class ScanSession:
         self.stop_reason = reason
         self.failure = None if reason == "end_height" else reason
         logger.debug("scan stopped: %s at height %.3f m", reason, self.camera_height_m)
-
-    # ------------------------------------------------------------------ scoring
-    def result(self, policy: str = "") -> ScanResult:
-        """Score the current model against the ground truth."""
-        if self.tree is None:
-            raise RuntimeError("ScanSession.reset(seed) must be called before result()")
-        model = self.model
-        metrics = evaluate(model, self.tree, scanned_top_z_m=self.camera_height_m)
-        outcomes = Counter(r.outcome.value for r in self.reports)
-        stages = sorted({k for r in self.reports for k in r.timings_ms})
-        stage_ms = {
-            k: float(np.median([r.timings_ms[k] for r in self.reports if k in r.timings_ms]))
-            for k in stages
-        }
-        return ScanResult(
-            seed=int(self.tree.seed) if self.tree.seed is not None else -1,
-            policy=policy,
-            metrics=metrics,
-            model=model,
-            truth=self.tree,
-            scan_time_s=self.scan_time_s,
-            rotations=self.rotations,
-            failure=self.failure,
-            stop_reason=self.stop_reason or "running",
-            n_iterations=len(self.reports),
-            outcomes=dict(outcomes),
-            stage_ms=stage_ms,
-            wall_time_s=time.perf_counter() - self._wall_start,
-        )
-
-
-@dataclass
-class ScanResult:
-    """One scored scan (see :meth:`ScanSession.result`)."""
-
-    seed: int
-    policy: str
-    metrics: TreeMetrics
-    model: TreeModel
-    truth: TreeGT
-    scan_time_s: float
-    rotations: int
-    failure: str | None
-    stop_reason: str
-    n_iterations: int
-    outcomes: dict[str, int]
-    stage_ms: dict[str, float]
-    wall_time_s: float
-
-    def to_row(self) -> dict:
-        """A flat, CSV-able row."""
-        row = {
-            "seed": self.seed,
-            "policy": self.policy,
-            "scan_time_s": self.scan_time_s,
-            "rotations": self.rotations,
-            "failure": self.failure or "",
-            "stop_reason": self.stop_reason,
-            "n_iterations": self.n_iterations,
-            "wall_time_s": self.wall_time_s,
-        }
-        row.update({f"outcome_{k}": v for k, v in sorted(self.outcomes.items())})
-        row.update(self.metrics.to_dict())
-        row.update({f"stage_{k}": v for k, v in self.stage_ms.items()})
-        return row
-
-
-_SESSIONS: dict[ScanConfig, ScanSession] = {}
-
-
-def run_scan(seed: int, policy_spec: str | object = "none", config: ScanConfig | None = None):
-    """Scan the tree of ``seed`` with a rotation policy and score it.
-
-    Args:
-        seed: Tree seed (and the seed of every random draw of the scan).
-        policy_spec: A spec for :func:`agents.rotation.make_policy` ("none",
-            "periodic:22.5:1.5") or a policy object with ``reset()`` and
-            ``target_angle_deg(state)``.
-        config: Scan settings.
-
-    Returns:
-        The :class:`ScanResult`.
-    """
-    from agents.rotation import RotationState, make_policy
-
-    config = config or ScanConfig()
-    policy = make_policy(policy_spec) if isinstance(policy_spec, str) else policy_spec
-    session = _SESSIONS.get(config)
-    if session is None:  # one pybullet world per process and config, reused across trials
-        session = _SESSIONS[config] = ScanSession(config)
-    session.reset(seed)
-    policy.reset()
-    while not session.done:
-        state = RotationState(
-            angle_deg=session.angle_deg,
-            travel_since_rotation_m=session.travel_since_rotation_m,
-            vertical_fov_m=session.vertical_fov_m,
-            iteration=len(session.reports),
-        )
-        session.step(policy.target_angle_deg(state))
-    return session.result(policy_spec if isinstance(policy_spec, str) else policy.spec)
-
-
-def _heading_rad(T_world_camera: np.ndarray) -> float:
-    """Yaw of the optical axis about world z, 0 along +y (the home view direction)."""
-    axis = T_world_camera[:3, 2]
-    return math.atan2(-axis[0], axis[1])

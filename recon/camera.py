@@ -15,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from recon.validation import require_finite
+
 # Authors' simulated camera (reference.md, "Simulated world"): 320x240, 42 deg horizontal FoV.
 DEFAULT_WIDTH_PX = 320
 DEFAULT_HEIGHT_PX = 240
@@ -44,10 +46,7 @@ class CameraIntrinsics:
     def __post_init__(self) -> None:
         if self.width <= 0 or self.height <= 0:
             raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
-        values = {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy}
-        for name, value in values.items():
-            if not math.isfinite(value):
-                raise ValueError(f"camera intrinsic {name} must be finite, got {value}")
+        require_finite(self, "fx", "fy", "cx", "cy")
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
 

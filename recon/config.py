@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from recon.validation import require_positive
+
 
 @dataclass(frozen=True)
 class ModelerConfig:
@@ -97,14 +99,13 @@ class ModelerConfig:
     primary_sample_spacing_m: float = 0.005
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool):
-                continue
-            if f.name in ("secondary_trust_min", "secondary_min_view_angle_deg"):
-                continue
-            if not value > 0:
-                raise ValueError(f"ModelerConfig.{f.name} must be positive, got {value}")
+        not_positive = ("secondary_trust_min", "secondary_min_view_angle_deg")
+        positive = [
+            f.name
+            for f in fields(self)
+            if f.name not in not_positive and not isinstance(getattr(self, f.name), bool)
+        ]
+        require_positive(self, *positive, finite=False)
         for name in ("consistency_min_fraction", "ransac_min_inlier_fraction"):
             if getattr(self, name) > 1:
                 raise ValueError(f"ModelerConfig.{name} is a fraction in (0, 1]")

@@ -37,6 +37,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 
+from recon.validation import require_non_negative, require_positive
+
 PERCENT = 100.0
 
 
@@ -101,20 +103,10 @@ class MetricsConfig:
             raise ValueError(
                 f"primary_resample_count must be >= 2, got {self.primary_resample_count}"
             )
-        positive = {
-            "secondary_resample_step_m": self.secondary_resample_step_m,
-            "max_match_median_distance_m": self.max_match_median_distance_m,
-        }
-        non_negative = {
-            "gt_base_margin_m": self.gt_base_margin_m,
-            "min_horizontal_length_m": self.min_horizontal_length_m,
-        }
-        for name, value in positive.items():
-            if not value > 0.0:
-                raise ValueError(f"{name} must be positive, got {value}")
-        for name, value in non_negative.items():
-            if not value >= 0.0:
-                raise ValueError(f"{name} must be >= 0, got {value}")
+        require_positive(
+            self, "secondary_resample_step_m", "max_match_median_distance_m", finite=False
+        )
+        require_non_negative(self, "gt_base_margin_m", "min_horizontal_length_m", finite=False)
         if not 0.0 < self.max_match_angle_deg <= 180.0:
             raise ValueError(
                 f"max_match_angle_deg must be in (0, 180], got {self.max_match_angle_deg}"

@@ -15,7 +15,6 @@ camera motion and runs one iteration every 10 mm:
 from __future__ import annotations
 
 import logging
-import time
 from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum
@@ -32,6 +31,7 @@ from recon.model import TreeModel
 from recon.model3d.lifting import lift_pixels
 from recon.model3d.primary import fit_visible_segment, project_model, splice
 from recon.model3d.secondary import SecondaryBranches, SecondaryDetection
+from recon.timing import stage_timer
 from recon.tracking import PointTracker
 
 logger = logging.getLogger(__name__)
@@ -180,15 +180,18 @@ class Modeler:
             raise ValueError(
                 f"an iteration needs at least 2 frames to triangulate, got {len(frames)}"
             )
-        t_start = time.perf_counter()
+        timings: dict[str, float] = {}
+        with stage_timer(timings, "total_ms"):
+            return self._iterate(frames, timings)
+
+    def _iterate(self, frames: list[Frame], timings: dict[str, float]) -> IterationReport:
+        """The body of :meth:`run_iteration`; stage times go into ``timings`` (the report's)."""
         cfg = self.config
         frame = frames[-1]
         self._iterations += 1
-        timings: dict[str, float] = {}
 
-        t0 = time.perf_counter()
-        curves = fit_mask_curves(frame.mask, self.curve_config, prior=self._prior(frame))
-        timings["curve2d_ms"] = (time.perf_counter() - t0) * 1e3
+        with stage_timer(timings, "curve2d_ms"):
+            curves = fit_mask_curves(frame.mask, self.curve_config, prior=self._prior(frame))
         report = IterationReport(
             self._iterations,
             Outcome.CONSISTENT,
@@ -198,24 +201,23 @@ class Modeler:
             timings_ms=timings,
         )
         if curves.primary is None:
-            return self._inconsistent(report, frame, "no primary branch in the mask", t_start)
+            return self._inconsistent(report, frame, "no primary branch in the mask")
 
         # Consistency of the existing model with this mask.
-        t0 = time.perf_counter()
-        restart = False
+        restart = skip = False
         projected = None
-        if self._primary is not None:
-            projected = project_model(self._primary.points, frame, curves.primary.curve, cfg)
-            report.consistency_fraction = projected.consistent_fraction
-            if (
-                projected.visible.any()
-                and report.consistency_fraction < cfg.consistency_min_fraction
-            ):
-                if self._inconsistent_streak + 1 < cfg.restart_after_inconsistent:
-                    timings["consistency_ms"] = (time.perf_counter() - t0) * 1e3
-                    return self._inconsistent(report, frame, "model disagrees with mask", t_start)
-                restart = True
-        timings["consistency_ms"] = (time.perf_counter() - t0) * 1e3
+        with stage_timer(timings, "consistency_ms"):
+            if self._primary is not None:
+                projected = project_model(self._primary.points, frame, curves.primary.curve, cfg)
+                report.consistency_fraction = projected.consistent_fraction
+                if (
+                    projected.visible.any()
+                    and report.consistency_fraction < cfg.consistency_min_fraction
+                ):
+                    skip = self._inconsistent_streak + 1 < cfg.restart_after_inconsistent
+                    restart = not skip
+        if skip:
+            return self._inconsistent(report, frame, "model disagrees with mask")
 
         # Lift the primary samples and refit the visible part.
         lifted = lift_pixels(
@@ -223,30 +225,31 @@ class Modeler:
         )
         timings.update(lifted.timings_ms)
         report.n_lifted = len(lifted)
-        t0 = time.perf_counter()
-        replace = np.zeros(0, dtype=bool)
-        fit_points, fit_radii = lifted.centers, lifted.radii_m
-        if self._primary is not None:
-            replace = projected.visible.copy()
-            if restart:
-                for old in self._recent_inconsistent:
-                    old_proj = project_model(self._primary.points, old, curves.primary.curve, cfg)
-                    replace |= old_proj.visible
-            else:
-                agree = projected.visible & projected.near_curve
-                fit_points = np.concatenate([self._primary.points[agree], fit_points])
-                fit_radii = np.concatenate([self._primary.radii[agree], fit_radii])
-        up_world = -frame.T_world_camera[:3, 1]
-        order = np.argsort(fit_points @ up_world)
-        segment = fit_visible_segment(fit_points[order], fit_radii[order], frame, cfg, self.rng)
-        timings["fit3d_ms"] = (time.perf_counter() - t0) * 1e3
+        with stage_timer(timings, "fit3d_ms"):
+            replace = np.zeros(0, dtype=bool)
+            fit_points, fit_radii = lifted.centers, lifted.radii_m
+            if self._primary is not None:
+                replace = projected.visible.copy()
+                if restart:
+                    for old in self._recent_inconsistent:
+                        old_proj = project_model(
+                            self._primary.points, old, curves.primary.curve, cfg
+                        )
+                        replace |= old_proj.visible
+                else:
+                    agree = projected.visible & projected.near_curve
+                    fit_points = np.concatenate([self._primary.points[agree], fit_points])
+                    fit_radii = np.concatenate([self._primary.radii[agree], fit_radii])
+            up_world = -frame.T_world_camera[:3, 1]
+            order = np.argsort(fit_points @ up_world)
+            segment = fit_visible_segment(fit_points[order], fit_radii[order], frame, cfg, self.rng)
         if segment is None:
             reason = (
                 "too few lifted points"
                 if len(fit_points) < cfg.min_lifted_points
                 else ("3D fit has too few inliers")
             )
-            return self._inconsistent(report, frame, reason, t_start)
+            return self._inconsistent(report, frame, reason)
         self._primary = splice(self._primary, replace, segment[0], segment[1], up_world)
         if restart:
             report.outcome = Outcome.RESTART
@@ -259,16 +262,14 @@ class Modeler:
         self._recent_inconsistent.clear()
 
         # Secondary branches.
-        t0 = time.perf_counter()
-        detections = self._lift_secondaries(frames, curves)
-        report.n_secondary_detections = len(detections)
-        report.n_new_secondaries = self._secondaries.add_detections(
-            detections, self._primary, frame.T_world_camera[:3, 3]
-        )
-        self._secondaries.update_trust(frame)
-        report.n_secondaries = len(self._secondaries.models())
-        timings["secondaries_ms"] = (time.perf_counter() - t0) * 1e3
-        timings["total_ms"] = (time.perf_counter() - t_start) * 1e3
+        with stage_timer(timings, "secondaries_ms"):
+            detections = self._lift_secondaries(frames, curves)
+            report.n_secondary_detections = len(detections)
+            report.n_new_secondaries = self._secondaries.add_detections(
+                detections, self._primary, frame.T_world_camera[:3, 3]
+            )
+            self._secondaries.update_trust(frame)
+            report.n_secondaries = len(self._secondaries.models())
         return report
 
     def _prior(self, frame: Frame) -> PrimaryPrior | None:
@@ -317,15 +318,12 @@ class Modeler:
                 detections.append(SecondaryDetection(lifted.centers[keep], lifted.radii_m[keep]))
         return detections
 
-    def _inconsistent(
-        self, report: IterationReport, frame: Frame, reason: str, t_start: float
-    ) -> IterationReport:
+    def _inconsistent(self, report: IterationReport, frame: Frame, reason: str) -> IterationReport:
         self._inconsistent_streak += 1
         self._recent_inconsistent.append(frame)
         report.outcome = Outcome.INCONSISTENT
         report.reason = reason
         report.n_secondaries = len(self._secondaries.models())
-        report.timings_ms["total_ms"] = (time.perf_counter() - t_start) * 1e3
         return report
 
 

@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 import branch_gym
-from agents.baselines import make_agent
 from agents.disagreement import (
     DisagreementAgent,
     DisagreementConfig,
     parse_disagreement_spec,
 )
+from agents.factory import make_agent
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG, THETA_MAX_DEG, VECTOR_SIZE, VectorField
-from branch_gym.evaluation.env_trial import run_scan_in_env
+from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
 
 STEP_FOV = 0.09  # travel of one modeling iteration (10 mm) in vertical FoVs (0.115 m)
@@ -149,5 +149,5 @@ def test_real_episode_rotates_only_on_evidence() -> None:
                 v[VectorField.UNCONFIRMED_CANDIDATES] > 0 or v[VectorField.OUTCOME_CONSISTENT] == 0
             )
     # The same scan through eval's path: the spec is recorded, the scan completes.
-    result = run_scan_in_env(2, "disagreement", ScanConfig(tracker="oracle", end_height_m=0.5))
+    result = run_trial(2, "disagreement", ScanConfig(tracker="oracle", end_height_m=0.5))
     assert result.rotations == info["rotations"]

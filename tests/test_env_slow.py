@@ -1,4 +1,4 @@
-"""Slow environment tests: agents vs run_scan, vector envs, many episodes, an SB3 learner."""
+"""Slow environment tests: action types agree, vector envs, many episodes, an SB3 learner."""
 
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ import branch_gym
 from agents.baselines import PeriodicAgent
 from branch_gym.env import BranchScanEnv
 from branch_gym.env.layout import VECTOR_SIZE
-from branch_gym.scan import ScanConfig, run_scan
+from branch_gym.evaluation.episodes import run_trial
+from branch_gym.scan import ScanConfig
 
 # Metrics compared between a plain scan and an env episode (all of TreeMetrics.to_dict's counts
 # and errors; NaN became None in the env's info).
@@ -40,9 +41,9 @@ _COMPARED = (
 @pytest.mark.parametrize(
     ("env_id", "tracker"), [(branch_gym.ENV_ID, "lk"), (branch_gym.DISCRETE_ENV_ID, "oracle")]
 )
-def test_periodic_agent_in_the_env_matches_run_scan(env_id: str, tracker: str) -> None:
+def test_periodic_agent_scans_alike_in_every_action_type(env_id: str, tracker: str) -> None:
     config = ScanConfig(tracker=tracker, end_height_m=0.45)
-    reference = run_scan(7, "periodic:22.5:1.5", config).to_row()
+    reference = run_trial(7, "periodic:22.5:1.5", config).to_row()  # continuous env
     env = gymnasium.make(env_id, scan=config)
     agent = PeriodicAgent.for_env(env, 22.5, 1.5)
     obs, _ = env.reset(seed=7)

@@ -13,10 +13,11 @@ import pytest
 
 import branch_gym
 from agents.baselines import PeriodicAgent
+from agents.ppo import action_type_of
 from branch_gym.env.actions import ActionCodec
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG, TRIGGER_ANGLES_DEG
 from branch_gym.scan import ScanConfig, ScanSession
-from branch_gym.training.policy import action_type_of
+from branch_gym.scoring import score_scan
 from recon.camera import CameraIntrinsics
 from recon.frame import Frame
 from recon.tracking.depth_oracle import DepthOracleTracker
@@ -131,7 +132,7 @@ def test_pose_only_frames_give_the_same_scan_with_fewer_renders() -> None:
         session.reset(7)
         while not session.done:
             session.step(0.0)
-        results[render_all], renders[render_all] = session.result(), count[0]
+        results[render_all], renders[render_all] = score_scan(session), count[0]
         session.close()
     full, fast = results[True], results[False]
     assert fast.n_iterations == full.n_iterations > 3

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from branch_gym.control import FollowControllerConfig
+from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.plots import write_figures
 from branch_gym.evaluation.report import (
     TABLE_ROWS,
@@ -23,7 +24,6 @@ from branch_gym.evaluation.report import (
 )
 from branch_gym.evaluation.runner import (
     ConfigMismatchError,
-    EvalConfig,
     check_output_folder,
     load_records,
     pending_trials,
@@ -39,6 +39,7 @@ from branch_gym.evaluation.trials import (
 )
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
+from recon.io.folder import ScanFolder
 from recon.metrics import TreeMetrics, aggregate
 from recon.model import BranchModel, TreeModel
 
@@ -286,7 +287,7 @@ def test_report_files_on_hand_made_trials(tmp_path: Path) -> None:
 
 # ----------------------------------------------------------------------------- validation
 def test_unknown_policy_is_refused_before_any_work(tmp_path: Path, capsys) -> None:
-    with pytest.raises(ValueError, match="unknown rotation policy spec 'spin:3'"):
+    with pytest.raises(ValueError, match="unknown policy spec 'spin:3'"):
         EvalConfig(("none", "spin:3"), trees=1)
     with pytest.raises(ValueError, match="repeated"):
         EvalConfig(("none", "none"), trees=1)
@@ -294,7 +295,7 @@ def test_unknown_policy_is_refused_before_any_work(tmp_path: Path, capsys) -> No
     with pytest.raises(SystemExit) as exit_info:
         eval_cli.main(["--policies", "none", "periodic:22.5", "--trees", "1", "--out", str(out)])
     assert exit_info.value.code == eval_cli.EXIT_USAGE
-    assert "unknown rotation policy spec 'periodic:22.5'" in capsys.readouterr().err
+    assert "policy spec 'periodic:22.5'" in capsys.readouterr().err
     assert not out.exists()
 
 
@@ -420,3 +421,25 @@ def test_resume_runs_only_new_trials_and_results_do_not_depend_on_workers(
     assert eval_cli.main(_cli(out, trees=2, workers=1)) == 0
     assert "1 trials run, 3 loaded" in capsys.readouterr().out
     assert (out / "summary.json").read_bytes() == first
+
+
+def test_a_trial_that_raises_ends_the_run_with_one_line(tmp_path: Path, capsys) -> None:
+    corrupt = tmp_path / "corrupt.zip"
+    corrupt.write_bytes(b"not a zip file")
+    out = tmp_path / "out"
+    status = eval_cli.main(["--policies", f"ppo:{corrupt}", "--trees", "1", "--out", str(out)])
+    assert status == eval_cli.EXIT_TRIAL_FAILED
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("error")]
+    assert len(lines) == 1
+    assert f"trial 'ppo:{corrupt}' seed 0" in lines[0] and "not a readable" in lines[0]
+    assert "Traceback" in (out / eval_cli.ERROR_LOG).read_text()
+
+
+def test_record_writes_a_replayable_scan_folder_per_trial(tmp_path: Path) -> None:
+    out, record = tmp_path / "out", tmp_path / "scans"
+    argv = ["--policies", "none", "--trees", "1", "--seed", "3", "--out", str(out)]
+    assert eval_cli.main([*argv, "--end-height", "0.36", "--record", str(record)]) == 0
+    folder = record / "none" / "seed_0003"
+    scan = ScanFolder(folder)
+    assert len(scan) > 10
+    assert (folder / "truth.json").is_file() and (folder / "metadata.json").is_file()

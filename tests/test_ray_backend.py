@@ -14,9 +14,10 @@ from pathlib import Path
 
 import pytest
 
+from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.ray_backend import INSTALL_HINT, RayUnavailableError
-from branch_gym.evaluation.runner import EvalConfig, load_records, run_trials
+from branch_gym.evaluation.runner import load_records, run_trials
 from branch_gym.evaluation.trials import TRIALS_DIR, trial_path
 from branch_gym.scan import ScanConfig
 

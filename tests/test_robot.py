@@ -235,14 +235,14 @@ def test_move_camera_to_goes_straight_and_arrives(robot: UR5e) -> None:
     start = robot.T_world_camera()
     target = camera_pose_facing_branch(BRANCH_POINT + np.array([0.03, 0.0, 0.05]), 0.2, 30.0)
     positions = []
-    apply = robot.apply_camera_twist
+    apply = robot.motion.apply_camera_twist
 
     def recording_apply(twist: np.ndarray, dt_s: float) -> MotionStatus:
         status = apply(twist, dt_s)
         positions.append(robot.T_world_camera()[:3, 3])
         return status
 
-    robot.apply_camera_twist = recording_apply  # type: ignore[method-assign]
+    robot.motion.apply_camera_twist = recording_apply  # type: ignore[method-assign]
     status = robot.move_camera_to(target, speed_mps=0.05)
     assert status.ok, status
     final = robot.T_world_camera()

@@ -7,7 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from branch_gym.scan import ScanConfig, ScanSession, run_scan
+from branch_gym.evaluation.episodes import run_trial
+from branch_gym.scan import ScanConfig, ScanSession
+from branch_gym.scoring import score_scan
 
 SHORT = ScanConfig(end_height_m=0.45)
 
@@ -41,7 +43,7 @@ def test_short_scan_reconstructs_primary_and_follows_it(session: ScanSession) ->
     radius = float(np.median(session.tree.primary.radii))
     assert np.max(np.abs(np.array(depths) - 0.20)) < 0.004 + radius
     assert np.max(np.abs(laterals)) < 0.005
-    result = session.result("none")
+    result = score_scan(session, "none")
     assert result.metrics.pb_residual_mean_m < 0.002
     assert result.metrics.pb_radius_rmse_m < 0.0005
     assert result.scan_time_s == pytest.approx((0.45 - 0.275) / 0.025, rel=0.05)
@@ -68,8 +70,8 @@ def test_rotation_costs_time_and_returns_to_the_branch(session: ScanSession) -> 
 
 @pytest.mark.slow
 def test_same_seed_same_scan() -> None:
-    a = run_scan(5, "periodic:45:2.5", SHORT).to_row()
-    b = run_scan(5, "periodic:45:2.5", SHORT).to_row()
+    a = run_trial(5, "periodic:45:2.5", SHORT).to_row()
+    b = run_trial(5, "periodic:45:2.5", SHORT).to_row()
     for key in ("scan_time_s", "rotations", "n_iterations", "pb_residual_mean_m", "n_matched"):
         assert a[key] == b[key]
 

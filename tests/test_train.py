@@ -12,21 +12,21 @@ import pytest
 from gymnasium import spaces
 
 import branch_gym
-from agents.baselines import make_agent
-from branch_gym.evaluation.env_trial import run_scan_in_env
-from branch_gym.scan import ScanConfig
-from branch_gym.training.callbacks import scan_metrics
-from branch_gym.training.checkpoints import CheckpointError, read_checkpoint
-from branch_gym.training.config import PPOConfig, TrainConfig
-from branch_gym.training.envs import DICT_POLICY, FLAT_POLICY, policy_class
-from branch_gym.training.paths import RunPaths
-from branch_gym.training.policy import (
+from agents.factory import make_agent
+from agents.ppo import (
     ModelFileError,
     PolicyAgent,
     check_ppo_spec,
     flatten_observation,
     load_policy,
 )
+from branch_gym.evaluation.episodes import run_trial
+from branch_gym.scan import ScanConfig
+from branch_gym.training.callbacks import scan_metrics
+from branch_gym.training.checkpoints import CheckpointError, read_checkpoint
+from branch_gym.training.config import PPOConfig, TrainConfig
+from branch_gym.training.envs import DICT_POLICY, FLAT_POLICY, policy_class
+from branch_gym.training.paths import RunPaths
 from branch_gym.training.seeds import (
     EVAL_SEED_BASE,
     MAX_EVAL_TREES,
@@ -234,7 +234,7 @@ def check_loaded_model_acts(paths: RunPaths) -> None:
     actions, _ = agent.predict(batch, episode_start=np.array([True, False]))
     assert actions.shape == (2, 1) and np.allclose(actions[0], action)
     # eval.py's path: the "ppo:PATH" spec plays a whole scan.
-    result = run_scan_in_env(0, f"ppo:{paths.final_model}", ScanConfig(**SHORT))
+    result = run_trial(0, f"ppo:{paths.final_model}", ScanConfig(**SHORT))
     assert result.policy == f"ppo:{paths.final_model}" and result.n_iterations > 0
 
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -366,3 +368,27 @@ def test_using_the_world_before_reset_raises() -> None:
                 call()
     finally:
         fresh.close()
+
+
+# ------------------------------------------------------------------------------- stdout
+
+
+def test_creating_a_world_writes_nothing_to_stdout(capfd: pytest.CaptureFixture[str]) -> None:
+    capfd.readouterr()
+    fresh = World()
+    try:
+        fresh.reset(0)
+        fresh.render()
+    finally:
+        fresh.close()
+    assert capfd.readouterr().out == ""
+
+
+def test_importing_and_building_a_world_in_a_fresh_process_keeps_stdout_empty() -> None:
+    code = (
+        "from branch_gym.sim.world import World\nworld = World()\nworld.reset(0)\nworld.close()\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True
+    )
+    assert done.stdout == ""

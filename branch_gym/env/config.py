@@ -12,10 +12,11 @@ from __future__ import annotations
 
 import difflib
 import math
-import numbers
+from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
+from branch_gym.config_utils import is_number
 from branch_gym.env.layout import (
     ACTION_TYPES,
     DISCRETE_ANGLES_DEG,
@@ -26,6 +27,7 @@ from branch_gym.env.reward import RewardConfig
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.config import TreeConfig
 from branch_gym.sim.tree.ground_truth import TreeGT
+from branch_gym.sim.validation import require_int, require_positive
 
 TREE_PRESETS = ("paper", "cluttered", "hard")
 RESET_OPTIONS = ("tree",)
@@ -68,15 +70,9 @@ class ObservationConfig:
     explained_min_fraction: float = 0.5
 
     def __post_init__(self) -> None:
-        for name in ("image_height", "image_width"):
-            value = getattr(self, name)
-            if not (isinstance(value, int) and value >= 1):
-                raise ValueError(f"ObservationConfig.{name} must be a positive int, got {value!r}")
-        for name in ("count_scale", "travel_clip_fov", "explained_tolerance_px"):
-            value = getattr(self, name)
-            if not (_is_number(value) and math.isfinite(value) and value > 0):
-                raise ValueError(f"ObservationConfig.{name} must be positive, got {value!r}")
-        if not (_is_number(self.explained_min_fraction) and 0.0 < self.explained_min_fraction <= 1):
+        require_int(self, "image_height", "image_width", minimum=1)
+        require_positive(self, "count_scale", "travel_clip_fov", "explained_tolerance_px")
+        if not (is_number(self.explained_min_fraction) and 0.0 < self.explained_min_fraction <= 1):
             raise ValueError(
                 "ObservationConfig.explained_min_fraction must be in (0, 1], got "
                 f"{self.explained_min_fraction!r}"
@@ -123,40 +119,25 @@ class EnvConfig:
                 f"EnvConfig.action_type must be one of {ACTION_TYPES}, got {self.action_type!r}"
             )
         theta = self.theta_max_deg
-        if not (_is_number(theta) and 0.0 < theta <= _MAX_THETA_DEG):
+        if not (is_number(theta) and 0.0 < theta <= _MAX_THETA_DEG):
             raise ValueError(
                 f"EnvConfig.theta_max_deg must be in (0, {_MAX_THETA_DEG}], got {theta!r}"
             )
-        try:
-            angles = tuple(self.discrete_angles_deg)
-        except TypeError:
-            angles = ()
-        # Only a discrete env's angles must lie within the normaliser's range.
+        # Only a discrete (trigger) env's angles must lie within the normaliser's range.
         limit = theta if self.action_type == "discrete" else math.inf
-        if not angles or not all(
-            _is_number(a) and math.isfinite(a) and abs(a) <= limit for a in angles
-        ):
-            raise ValueError(
-                "EnvConfig.discrete_angles_deg must be a non-empty sequence of finite angles "
-                f"(within +-theta_max_deg={theta} for a discrete env), "
-                f"got {self.discrete_angles_deg!r}"
-            )
-        object.__setattr__(self, "discrete_angles_deg", tuple(float(a) for a in angles))
-        try:
-            triggers = tuple(self.trigger_angles_deg)
-        except TypeError:
-            triggers = ()
-        # Only a trigger env's angles must lie within the normaliser's range.
+        _set_angles(
+            self,
+            "discrete_angles_deg",
+            lambda a: abs(a) <= limit,
+            f"finite angles (within +-theta_max_deg={theta} for a discrete env)",
+        )
         limit = theta if self.action_type == "trigger" else math.inf
-        if not triggers or not all(
-            _is_number(a) and math.isfinite(a) and 0.0 < a <= limit for a in triggers
-        ):
-            raise ValueError(
-                "EnvConfig.trigger_angles_deg must be a non-empty sequence of positive angles "
-                f"(at most theta_max_deg={theta} for a trigger env), "
-                f"got {self.trigger_angles_deg!r}"
-            )
-        object.__setattr__(self, "trigger_angles_deg", tuple(float(a) for a in triggers))
+        _set_angles(
+            self,
+            "trigger_angles_deg",
+            lambda a: 0.0 < a <= limit,
+            f"positive angles (at most theta_max_deg={theta} for a trigger env)",
+        )
         for name, kind in (
             ("flatten", bool),
             ("info_timings", bool),
@@ -211,7 +192,7 @@ def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
         if key in shortcuts and not isinstance(shortcuts[key], valid_type):
             raise ValueError(f"{key} must be a str, got {shortcuts[key]!r}")
     for key in ("end_height_m", "speed_mps"):
-        if key in shortcuts and not _is_number(shortcuts[key]):
+        if key in shortcuts and not is_number(shortcuts[key]):
             raise ValueError(f"{key} must be a number, got {shortcuts[key]!r}")
     if "render_tracking_frames" in shortcuts and not isinstance(
         shortcuts["render_tracking_frames"], bool
@@ -251,6 +232,22 @@ def tree_from_options(options: dict[str, Any] | None) -> TreeGT | None:
     return tree
 
 
-def _is_number(value: object) -> bool:
-    """A real number (bool excluded)."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+def _set_angles(
+    config: EnvConfig, name: str, valid: Callable[[float], bool], requirement: str
+) -> None:
+    """Check the angle sequence field ``name`` of ``config`` and store it as a float tuple.
+
+    Raises:
+        ValueError: It is not a non-empty sequence of finite numbers that pass ``valid``
+            (``requirement`` says what they must be).
+    """
+    value = getattr(config, name)
+    try:
+        angles = tuple(value)
+    except TypeError:
+        angles = ()
+    if not angles or not all(is_number(a) and math.isfinite(a) and valid(a) for a in angles):
+        raise ValueError(
+            f"EnvConfig.{name} must be a non-empty sequence of {requirement}, got {value!r}"
+        )
+    object.__setattr__(config, name, tuple(float(a) for a in angles))

@@ -11,7 +11,8 @@ import math
 from collections import defaultdict
 from collections.abc import Mapping, Sequence
 
-from branch_gym.scan import ScanResult, ScanSession
+from branch_gym.scan import ScanSession
+from branch_gym.scoring import ScanResult
 from recon.metrics import TreeMetrics
 from recon.modeler import IterationReport
 

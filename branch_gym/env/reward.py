@@ -18,9 +18,9 @@ failed``. Rotating costs reward only through the scan time it takes.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, fields
 
+from branch_gym.sim.validation import require_non_negative
 from recon.metrics import TreeMetrics
 
 # Names of the terms in ``info["reward_terms"]``.
@@ -53,12 +53,7 @@ class RewardConfig:
     failure_penalty: float = 1.0
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise ValueError(f"RewardConfig.{f.name} must be a number, got {value!r}")
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"RewardConfig.{f.name} must be finite and >= 0, got {value}")
+        require_non_negative(self, *(f.name for f in fields(self)))
 
     @classmethod
     def from_dict(cls, data: dict) -> RewardConfig:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import time
 from dataclasses import replace
 from typing import Any
 
@@ -22,9 +21,11 @@ from branch_gym.env.observation import (
 )
 from branch_gym.env.rendering import camera_frame, follow_in_gui, require_display
 from branch_gym.env.reward import REWARD_TERMS, RewardTracker
-from branch_gym.scan import ScanResult, ScanSession
+from branch_gym.scan import ScanSession
+from branch_gym.scoring import ScanResult, score_scan
 from recon.metrics import TreeMetrics, evaluate
 from recon.modeler import IterationReport
+from recon.timing import stage_timer
 
 logger = logging.getLogger(__name__)
 
@@ -134,7 +135,7 @@ class BranchScanEnv(gym.Env):
     first), ``iterations`` (this step), ``n_iterations``, ``rotated``, and with ``info_timings``
     ``timings_ms`` (modeler stages summed over the step's iterations, ``scan_step_ms``,
     ``metrics_ms``, ``observation_ms``, ``env_step_ms``). When the scan ends (terminated):
-    ``final_metrics``, the :meth:`branch_gym.scan.ScanResult.to_row` of
+    ``final_metrics``, the :meth:`branch_gym.scoring.ScanResult.to_row` of
     the scan. After a ``TimeLimit`` truncation ``metrics`` is the final score.
 
     ## Arguments
@@ -163,8 +164,17 @@ class BranchScanEnv(gym.Env):
     =======================  =====================================================================
 
     Unknown keywords and bad values raise ``ValueError`` naming the key. ``reset(seed=s)`` scans
-    the tree of seed ``s`` (the same tree and scan as ``run_scan(s, ...)``); ``reset()`` draws the
-    seed from the env's generator; ``options={"tree": TreeGT}`` scans a given tree.
+    the tree of seed ``s``; ``reset()`` draws the seed from the env's generator;
+    ``options={"tree": TreeGT}`` scans a given tree.
+
+    ## Version History
+
+    A change to the observation, the action or the reward registers a new version of the ids
+    (``branch_gym/__init__.py``); the old version stays registered while models trained on it
+    are shipped.
+
+    - v0: the tables above: 12-entry vector (``SCAN_TIME`` last) and a 3-channel 60x80 image;
+      continuous, discrete and trigger actions; the scan-time limit a terminal failure.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": RENDER_FPS}  # noqa: RUF012
@@ -206,15 +216,14 @@ class BranchScanEnv(gym.Env):
         super().reset(seed=seed)
         tree = tree_from_options(options)
         self._seed = int(seed) if seed is not None else int(self.np_random.integers(_SEED_BOUND))
-        start = time.perf_counter()
-        self._session.reset(self._seed, tree)
-        self._reward.reset()
-        self._actions.reset()
-        self._last_report, self._previous_action, self._over = None, 0.0, False
-        reset_ms = (time.perf_counter() - start) * 1e3
-        metrics, metrics_ms = self._score()
-        obs, obs_ms = self._observe()
-        env_ms = {"reset_ms": reset_ms, "metrics_ms": metrics_ms, "observation_ms": obs_ms}
+        env_ms: dict[str, float] = {}
+        with stage_timer(env_ms, "reset_ms"):
+            self._session.reset(self._seed, tree)
+            self._reward.reset()
+            self._actions.reset()
+            self._last_report, self._previous_action, self._over = None, 0.0, False
+        metrics = self._score(env_ms)
+        obs = self._observe(env_ms)
         terms = dict.fromkeys(REWARD_TERMS, 0.0)
         return obs, self._info(metrics, terms, [], False, env_ms)
 
@@ -227,20 +236,19 @@ class BranchScanEnv(gym.Env):
                 f"{self._session.stop_reason!r}): call reset() to start a new scan"
             )
         angle_deg = self._actions.to_angle_deg(action, self._session.angle_deg)
-        start = time.perf_counter()
-        result = self._session.step(angle_deg)
-        scan_ms = (time.perf_counter() - start) * 1e3
-        self._previous_action = self._actions.normalised(angle_deg)
-        if result.reports:
-            self._last_report = result.reports[-1]
-        session = self._session
-        terminated, truncated = session.done, False
-        metrics, metrics_ms = self._score()
-        failed = terminated and session.failure is not None
-        reward, terms = self._reward.step(metrics, session.scan_time_s, failed)
-        obs, obs_ms = self._observe()
-        env_ms = {"scan_step_ms": scan_ms, "metrics_ms": metrics_ms, "observation_ms": obs_ms}
-        env_ms["env_step_ms"] = (time.perf_counter() - start) * 1e3
+        env_ms: dict[str, float] = {}
+        with stage_timer(env_ms, "env_step_ms"):
+            with stage_timer(env_ms, "scan_step_ms"):
+                result = self._session.step(angle_deg)
+            self._previous_action = self._actions.normalised(angle_deg)
+            if result.reports:
+                self._last_report = result.reports[-1]
+            session = self._session
+            terminated, truncated = session.done, False
+            metrics = self._score(env_ms)
+            failed = terminated and session.failure is not None
+            reward, terms = self._reward.step(metrics, session.scan_time_s, failed)
+            obs = self._observe(env_ms)
         info = self._info(metrics, terms, result.reports, result.rotated, env_ms)
         if session.done:
             self._over = True
@@ -275,23 +283,23 @@ class BranchScanEnv(gym.Env):
 
     def result(self) -> ScanResult:
         """The current scan scored against the ground truth (``policy="env"``)."""
-        return self._session.result("env")
+        return score_scan(self._session, "env")
 
     # ------------------------------------------------------------------ internals
-    def _score(self) -> tuple[TreeMetrics, float]:
-        start = time.perf_counter()
+    def _score(self, env_ms: dict[str, float]) -> TreeMetrics:
         session = self._session
-        metrics = evaluate(session.model, session.tree, scanned_top_z_m=session.camera_height_m)
-        return metrics, (time.perf_counter() - start) * 1e3
+        with stage_timer(env_ms, "metrics_ms"):
+            return evaluate(session.model, session.tree, scanned_top_z_m=session.camera_height_m)
 
-    def _observe(self) -> tuple[Any, float]:
-        start = time.perf_counter()
-        state = pipeline_state(
-            self._session, self._last_report, self._actions.normalised, self._previous_action
-        )
-        self._drawing = draw_state(state, self.config.observation)
-        obs = make_observation(state, self._drawing, self.config.observation, self.config.flatten)
-        return obs, (time.perf_counter() - start) * 1e3
+    def _observe(self, env_ms: dict[str, float]) -> Any:
+        with stage_timer(env_ms, "observation_ms"):
+            state = pipeline_state(
+                self._session, self._last_report, self._actions.normalised, self._previous_action
+            )
+            self._drawing = draw_state(state, self.config.observation)
+            return make_observation(
+                state, self._drawing, self.config.observation, self.config.flatten
+            )
 
     def _info(
         self,

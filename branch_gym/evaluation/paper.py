@@ -9,7 +9,7 @@ count or duplicate rate.
 
 from __future__ import annotations
 
-from agents.rotation import NoRotation, PeriodicRotation, make_policy
+from agents.baselines import NO_ROTATION_SPEC, parse_periodic_spec
 
 # (rotation angle deg, rotations per vertical FoV) -> summary-shaped values.
 PAPER_TABLE_I: dict[tuple[float, float], dict[str, object]] = {
@@ -63,12 +63,10 @@ PAPER_TABLE_I: dict[tuple[float, float], dict[str, object]] = {
 
 def paper_column(policy: str) -> dict[str, object] | None:
     """The paper's Table I column for a policy spec, or None when the paper has no such column."""
-    try:
-        rotation = make_policy(policy)
-    except ValueError:  # learned or heuristic policies: no paper column
-        return None
-    if isinstance(rotation, NoRotation):
+    if policy == NO_ROTATION_SPEC:
         return PAPER_TABLE_I[(0.0, 0.0)]
-    if isinstance(rotation, PeriodicRotation):
-        return PAPER_TABLE_I.get((rotation.angle_deg, rotation.frequency))
-    return None
+    try:
+        periodic = parse_periodic_spec(policy)
+    except ValueError:  # not a valid periodic spec: no paper column
+        return None
+    return None if periodic is None else PAPER_TABLE_I.get(periodic)

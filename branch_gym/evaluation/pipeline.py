@@ -10,11 +10,10 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from branch_gym.evaluation.config import EvalConfig, TrialKey
 from branch_gym.evaluation.plots import write_figures
 from branch_gym.evaluation.report import write_report
 from branch_gym.evaluation.runner import (
-    EvalConfig,
-    TrialKey,
     check_output_folder,
     load_records,
     pending_trials,

@@ -20,13 +20,13 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import ModuleType
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from branch_gym.evaluation.trials import TrialRecord, trial_path, write_json_atomic
+from branch_gym.evaluation.config import EvalConfig, TrialError, TrialKey
+from branch_gym.evaluation.episodes import run_trial
+from branch_gym.evaluation.trials import TrialRecord, trial_path
+from branch_gym.files import write_json_atomic
 from branch_gym.scan import ScanConfig
-
-if TYPE_CHECKING:  # runner imports this module lazily; no import cycle at run time
-    from branch_gym.evaluation.runner import EvalConfig, TrialKey
 
 logger = logging.getLogger(__name__)
 
@@ -101,14 +101,12 @@ def trial_json(policy: str, seed: int, scan: ScanConfig, scan_hash: str) -> dict
     """Run one trial and return its record as strict JSON (the body of a Ray task).
 
     Raises:
-        RuntimeError: the trial raised (the message names it).
+        TrialError: the trial raised (the message names it).
     """
-    from branch_gym.evaluation.env_trial import run_scan_in_env
-
     try:
-        result = run_scan_in_env(seed, policy, scan)
+        result = run_trial(seed, policy, scan)
     except Exception as exc:
-        raise RuntimeError(f"trial {policy!r} seed {seed} raised: {exc!r}") from exc
+        raise TrialError(f"trial {policy!r} seed {seed} raised {exc!r}") from exc
     return TrialRecord.from_scan(result, policy, scan_hash).to_json_dict()
 
 
@@ -132,7 +130,7 @@ def run_trials_ray(
 
     Raises:
         RayUnavailableError: Ray is not installed.
-        RuntimeError: a trial raised; the trials already finished stay saved, the running ones
+        TrialError: a trial raised; the trials already finished stay saved, the running ones
             are cancelled.
     """
     done: list[TrialKey] = []
@@ -165,8 +163,8 @@ def run_trials_ray(
 
 
 def _result(ray: ModuleType, ref: Any, key: TrialKey) -> dict[str, Any]:
-    """A finished task's record, or a RuntimeError naming the trial (not Ray's wrapper)."""
+    """A finished task's record, or a TrialError naming the trial (not Ray's wrapper)."""
     try:
         return ray.get(ref)
     except ray.exceptions.RayTaskError as exc:
-        raise RuntimeError(f"trial {key[0]!r} seed {key[1]} failed in Ray: {exc}") from exc
+        raise TrialError(f"trial {key[0]!r} seed {key[1]} failed in Ray: {exc}") from exc

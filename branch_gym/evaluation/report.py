@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.paper import paper_column
-from branch_gym.evaluation.runner import EvalConfig
 from branch_gym.evaluation.trials import TrialRecord
 from recon.metrics import aggregate
 

@@ -1,8 +1,7 @@
 """Run every policy on the same trees, in a process pool or on Ray, resuming from saved trials.
 
 Each (policy, tree seed) pair is one trial: the policy's agent plays one episode of the Gymnasium
-environment (``branch_gym.evaluation.env_trial.run_scan_in_env``; the same numbers as
-``branch_gym.scan.run_scan``).
+environment (:func:`branch_gym.evaluation.episodes.run_trial`, the one episode loop).
 A finished trial is saved at once (:mod:`branch_gym.evaluation.trials`); a later run with the same
 output folder loads the trials already there instead of re-running them, so an interrupted
 evaluation loses at most the trials that were running. Trials are only comparable under one scan
@@ -26,139 +25,40 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
-from agents.rotation import make_policy
-from branch_gym.evaluation.env_trial import run_scan_in_env
+from agents.ppo import PPO_SPEC_PREFIX, check_ppo_spec, normalizer_path
+from branch_gym.config_utils import flatten_dict
+from branch_gym.evaluation.config import EvalConfig, TrialError, TrialKey
+from branch_gym.evaluation.episodes import Recording, run_trial
+from branch_gym.evaluation.ray_backend import run_trials_ray
 from branch_gym.evaluation.trials import (
     TRIALS_DIR,
     TrialRecord,
-    config_hash,
     config_to_dict,
     load_trial,
     policy_slug,
     save_trial,
     trial_path,
-    write_json_atomic,
 )
+from branch_gym.files import write_json_atomic
 from branch_gym.scan import ScanConfig
-from branch_gym.training.paths import normalizer_path
-from branch_gym.training.policy import PPO_SPEC_PREFIX, check_ppo_spec
 
 logger = logging.getLogger(__name__)
 
 CONFIG_FILE = "config.json"
 # Digest of a learned policy's files, next to its trials (trials/<policy>/model.json).
 MODEL_FILE = "model.json"
+# Recorded trials (eval.py --record): JPEG frames, ~4x smaller than PNG; the replay of a JPEG
+# recording is close to, not identical with, the online model (docs/replay.md).
+RECORD_IMAGE_FORMAT = "jpg"
+RECORD_JPEG_QUALITY = 90
 PARENT_POLL_S = 1.0  # how often a worker checks that the evaluation process is alive
-TrialKey = tuple[str, int]  # (policy spec, tree seed)
-BACKENDS = ("pool", "ray")
 
 
 class ConfigMismatchError(RuntimeError):
     """The output folder holds trials run under another scan configuration."""
-
-
-@dataclass(frozen=True)
-class EvalConfig:
-    """One evaluation: every policy on trees ``seed .. seed + trees - 1``.
-
-    Attributes:
-        policies: Rotation policy specs (``agents.rotation.make_policy``), in table order.
-        trees: Number of trees (tree seeds) per policy.
-        seed: First tree seed.
-        workers: Trials run at once: worker processes of the pool backend (1 runs the trials
-            in this process), Ray tasks in flight (and the CPUs of a local Ray instance).
-        scan: Scan configuration shared by all trials.
-        backend: "pool" (this process or a process pool) or "ray" (Ray tasks; ``pip install
-            .[ray]``). Like ``workers``, it does not change the results.
-        address: Ray cluster address for ``ray.init`` ("auto", "HOST:PORT", "ray://HOST:PORT");
-            None starts a private local Ray instance. Ray backend only.
-    """
-
-    policies: tuple[str, ...]
-    trees: int
-    seed: int = 0
-    workers: int = 1
-    scan: ScanConfig = field(default_factory=ScanConfig)
-    backend: str = "pool"
-    address: str | None = None
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "policies", tuple(self.policies))
-        validate_policies(self.policies)
-        if self.trees < 1:
-            raise ValueError(f"trees must be >= 1, got {self.trees}")
-        if self.seed < 0:
-            raise ValueError(f"seed must be >= 0, got {self.seed}")
-        if self.workers < 1:
-            raise ValueError(f"workers must be >= 1, got {self.workers}")
-        if self.backend not in BACKENDS:
-            raise ValueError(f"backend must be one of {BACKENDS}, got {self.backend!r}")
-        if self.address is not None and self.backend != "ray":
-            raise ValueError(f"a Ray address ({self.address!r}) needs the ray backend")
-
-    @property
-    def seeds(self) -> range:
-        """The tree seeds, the same for every policy."""
-        return range(self.seed, self.seed + self.trees)
-
-    @property
-    def keys(self) -> list[TrialKey]:
-        """All trials, policy order then seed."""
-        return [(policy, seed) for policy in self.policies for seed in self.seeds]
-
-    @property
-    def scan_hash(self) -> str:
-        return config_hash(self.scan)
-
-    def to_json_dict(self) -> dict:
-        """What determines the results (the worker count and the backend do not)."""
-        return {
-            "policies": list(self.policies),
-            "trees": self.trees,
-            "seed": self.seed,
-            "seeds": list(self.seeds),
-            "scan": config_to_dict(self.scan),
-            "scan_config_hash": self.scan_hash,
-        }
-
-
-def _check_spec(policy: str) -> None:
-    """Raise a ValueError naming the valid forms unless ``policy`` is a known spec."""
-    if policy.startswith(PPO_SPEC_PREFIX):
-        try:
-            check_ppo_spec(policy)  # the model file must exist; it is loaded by the trial
-        except FileNotFoundError as exc:
-            raise ValueError(str(exc)) from exc
-    elif policy.split(":")[0] == "disagreement":
-        from agents.disagreement import parse_disagreement_spec
-
-        parse_disagreement_spec(policy)
-    else:
-        make_policy(policy)
-
-
-def validate_policies(policies: Sequence[str]) -> None:
-    """Check every spec before any work.
-
-    Raises:
-        ValueError: no policy, an unknown or malformed spec, a repeated spec, or two specs that
-            would share a trial folder.
-    """
-    if not policies:
-        raise ValueError("at least one policy is needed")
-    slugs: dict[str, str] = {}
-    for policy in policies:
-        _check_spec(policy)
-        slug = policy_slug(policy)
-        if slug in slugs:
-            raise ValueError(
-                f"policies {slugs[slug]!r} and {policy!r} are repeated or share the trial "
-                f"folder name {slug!r}"
-            )
-        slugs[slug] = policy
 
 
 def check_output_folder(config: EvalConfig, out: Path) -> None:
@@ -204,7 +104,7 @@ def _check_model_file(policy: str, out: Path) -> None:
 
 
 def _mismatch_message(out: Path, theirs: dict, ours: dict) -> str:
-    old, new = _flatten(theirs.get("scan", {})), _flatten(ours["scan"])
+    old, new = flatten_dict(theirs.get("scan", {})), flatten_dict(ours["scan"])
     changed = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
     details = ", ".join(f"{k}: {old.get(k)!r} -> {new.get(k)!r}" for k in changed) or "unknown"
     return (
@@ -212,17 +112,6 @@ def _mismatch_message(out: Path, theirs: dict, ours: dict) -> str:
         f"{theirs.get('scan_config_hash')} there, {ours['scan_config_hash']} now; {details}). "
         "Use another --out, or delete its trials/ folder to start over."
     )
-
-
-def _flatten(config: dict, prefix: str = "") -> dict:
-    """Nested config dict -> {"modeler.ransac_inlier_m": 0.03, ...}."""
-    flat = {}
-    for key, value in config.items():
-        if isinstance(value, dict):
-            flat.update(_flatten(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
 
 
 def pending_trials(config: EvalConfig, out: Path) -> list[TrialKey]:
@@ -248,15 +137,16 @@ def run_trials(
         The trials run, in completion order.
 
     Raises:
-        RuntimeError: a trial raised; the trials already finished stay saved.
+        TrialError: a trial raised; the trials already finished stay saved.
         RayUnavailableError: the ray backend was chosen and Ray is not installed.
     """
     on_done = on_done or (lambda key: None)
     if config.backend == "ray":
-        from branch_gym.evaluation.ray_backend import run_trials_ray  # Ray is optional
-
         return run_trials_ray(config, out, keys, on_done)
-    tasks = [_Task(policy, seed, config.scan, config.scan_hash, out) for policy, seed in keys]
+    tasks = [
+        _Task(policy, seed, config.scan, config.scan_hash, out, config.record_dir)
+        for policy, seed in keys
+    ]
     done: list[TrialKey] = []
     if config.workers == 1 or len(tasks) <= 1:
         for task in tasks:
@@ -317,6 +207,14 @@ class _Task:
     scan: ScanConfig
     scan_hash: str
     out: Path
+    record_dir: Path | None = None
+
+    def recording(self) -> Recording | None:
+        """Where this trial's frames go, if the evaluation records."""
+        if self.record_dir is None:
+            return None
+        folder = self.record_dir / policy_slug(self.policy) / f"seed_{self.seed:04d}"
+        return Recording(folder, RECORD_IMAGE_FORMAT, RECORD_JPEG_QUALITY, overwrite=True)
 
 
 def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
@@ -344,9 +242,9 @@ def _run_task(task: _Task) -> TrialKey:
     """Run one scan and save it (in a worker process, or in this one)."""
     start = time.perf_counter()
     try:
-        result = run_scan_in_env(task.seed, task.policy, task.scan)
+        result = run_trial(task.seed, task.policy, task.scan, task.recording())
     except Exception as exc:
-        raise RuntimeError(f"trial {task.policy!r} seed {task.seed} raised: {exc!r}") from exc
+        raise TrialError(f"trial {task.policy!r} seed {task.seed} raised {exc!r}") from exc
     save_trial(
         trial_path(task.out, task.policy, task.seed),
         TrialRecord.from_scan(result, task.policy, task.scan_hash),

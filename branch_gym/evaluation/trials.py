@@ -15,22 +15,20 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import re
-import tempfile
 from dataclasses import asdict, dataclass, is_dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from branch_gym.files import PARTIAL_WRITE_GLOB, write_json_atomic
 from branch_gym.sim.tree.ground_truth import TreeGT
 from recon.metrics import TreeMetrics
 from recon.model import TreeModel
 
 TRIAL_FORMAT = 1
 TRIALS_DIR = "trials"
-FILE_MODE = 0o644
 Scalar = float | int | str | bool | None
 
 
@@ -64,7 +62,7 @@ class TrialRecord:
 
     @classmethod
     def from_scan(cls, result: Any, policy: str, config_hash: str) -> TrialRecord:
-        """Build a record from a ``branch_gym.scan.ScanResult``.
+        """Build a record from a ``branch_gym.scoring.ScanResult``.
 
         Args:
             result: The scan's result.
@@ -177,26 +175,9 @@ def config_hash(config: Any) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def write_json_atomic(path: Path, data: dict) -> None:
-    """Write strict JSON to ``path`` so that readers see the old file or the new one, whole."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = json.dumps(data, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(fd, FILE_MODE)  # mkstemp makes it private
-        with os.fdopen(fd, "w") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def remove_partial_writes(out: Path) -> int:
     """Delete temporary files left by a killed run under ``out/trials``; returns how many."""
-    partial = list((out / TRIALS_DIR).rglob(".*.tmp"))
+    partial = list((out / TRIALS_DIR).rglob(PARTIAL_WRITE_GLOB))
     for path in partial:
         path.unlink(missing_ok=True)
     return len(partial)

@@ -3,17 +3,71 @@
 Everything that talks to pybullet goes through a :class:`Bullet` instance, so that several
 simulations can live in one process (each with its own client id) and so that a scene can be
 torn down completely between episodes (pybullet leaks memory otherwise).
+
+pybullet's C code prints banners (``argv[0]=``, the EGL device list) on file descriptor 1 when
+it connects or loads a plugin; :func:`stdout_to_log` routes them into this module's DEBUG log so
+that library code keeps stdout clean for a CLI's output. (``import pybullet`` itself prints its
+build time on stderr, not stdout.)
 """
 
 from __future__ import annotations
 
+import ctypes
 import logging
+import os
+import pkgutil
+import sys
+import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import pybullet
 from pybullet_utils.bullet_client import BulletClient
 
+from branch_gym.sim.validation import require_positive
+
 logger = logging.getLogger(__name__)
+
+_STDOUT_FD = 1
+
+
+def _flush_c_stdout() -> None:
+    """Flush the C library's stdout buffer (pybullet's printf output), where there is one."""
+    try:
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError, TypeError):  # no C library to ask (e.g. Windows)
+        pass
+
+
+@contextmanager
+def stdout_to_log() -> Iterator[None]:
+    """Send what C code writes to file descriptor 1 during the block to the DEBUG log.
+
+    Python's ``sys.stdout`` redirection does not reach C ``printf``: this swaps the descriptor
+    itself (into a temporary file, read back and logged afterwards) and flushes the C buffer
+    before putting stdout back. The descriptor is process-wide: another thread printing during
+    the block is logged too. Without a usable descriptor 1 the block runs unchanged.
+    """
+    sys.stdout.flush()
+    _flush_c_stdout()
+    try:
+        saved = os.dup(_STDOUT_FD)
+    except OSError:
+        yield
+        return
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), _STDOUT_FD)
+        try:
+            yield
+        finally:
+            _flush_c_stdout()
+            os.dup2(saved, _STDOUT_FD)
+            os.close(saved)
+        sink.seek(0)
+        text = sink.read().decode(errors="replace").strip()
+    if text:
+        logger.debug("pybullet stdout: %s", text)
 
 
 @dataclass(frozen=True)
@@ -32,8 +86,7 @@ class BulletConfig:
     time_step_s: float = 1.0 / 240.0
 
     def __post_init__(self) -> None:
-        if not self.time_step_s > 0:
-            raise ValueError(f"time_step_s must be positive, got {self.time_step_s}")
+        require_positive(self, "time_step_s")
 
 
 class Bullet:
@@ -47,7 +100,8 @@ class Bullet:
     def __init__(self, config: BulletConfig | None = None) -> None:
         self.config = config or BulletConfig()
         mode = pybullet.GUI if self.config.gui else pybullet.DIRECT
-        self.p = BulletClient(connection_mode=mode)
+        with stdout_to_log():
+            self.p = BulletClient(connection_mode=mode)
         self._egl_plugin: int | None = None
         self.renderer = pybullet.ER_TINY_RENDERER
         if self.config.use_egl:
@@ -55,11 +109,10 @@ class Bullet:
         self.reset()
 
     def _load_egl(self) -> None:
-        import pkgutil
-
         egl = pkgutil.get_loader("eglRenderer")
         path = egl.get_filename() if egl is not None else None
-        plugin = self.p.loadPlugin(path, "_eglRendererPlugin") if path else -1
+        with stdout_to_log():
+            plugin = self.p.loadPlugin(path, "_eglRendererPlugin") if path else -1
         if plugin < 0:
             raise RuntimeError("could not load the pybullet EGL renderer plugin (eglRenderer)")
         self._egl_plugin = plugin

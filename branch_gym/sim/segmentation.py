@@ -19,6 +19,8 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from branch_gym.sim.validation import require_non_negative
+
 BACKGROUND_LABEL = 0
 PRIMARY_LABEL = 1
 FIRST_SECONDARY_LABEL = 2
@@ -106,15 +108,14 @@ class NoisySegmenterConfig:
     chunk_radius_range_px: tuple[float, float] = (3.0, 10.0)
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if f.name.endswith("_range_px"):
-                if len(value) != 2 or not value[0] <= value[1]:
-                    raise ValueError(f"{f.name} must be a (low, high) pair, got {value}")
-                if value[0] < 0:
-                    raise ValueError(f"{f.name} must be non-negative, got {value}")
-            elif not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{f.name} must be finite and non-negative, got {value}")
+        ranges = [f.name for f in fields(self) if f.name.endswith("_range_px")]
+        require_non_negative(self, *(f.name for f in fields(self) if f.name not in ranges))
+        for name in ranges:
+            value = getattr(self, name)
+            if len(value) != 2 or not value[0] <= value[1]:
+                raise ValueError(f"{name} must be a (low, high) pair, got {value}")
+            if value[0] < 0:
+                raise ValueError(f"{name} must be non-negative, got {value}")
         for name in ("thin_drop_prob", "clutter_leak_prob"):
             if getattr(self, name) > 1:
                 raise ValueError(f"{name} is a probability in [0, 1], got {getattr(self, name)}")

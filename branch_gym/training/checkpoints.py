@@ -19,8 +19,10 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
+from agents.ppo import normalizer_path
+from branch_gym.files import write_json_atomic
 from branch_gym.training.envs import episode_counts
-from branch_gym.training.paths import KEEP_CHECKPOINTS, RunPaths, normalizer_path
+from branch_gym.training.paths import KEEP_CHECKPOINTS, RunPaths
 
 logger = logging.getLogger(__name__)
 
@@ -71,14 +73,6 @@ def save_model(model: Any, venv: Any, path: Path) -> Path | None:
     return stats
 
 
-def write_json_atomic(path: Path, data: dict[str, Any]) -> None:
-    """Write ``data`` as JSON to ``path`` through a temporary file and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + _TMP)
-    tmp.write_text(json.dumps(data, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
-
-
 def write_checkpoint(
     model: Any, venv: Any, paths: RunPaths, best_mean_reward: float | None
 ) -> Checkpoint:
@@ -92,7 +86,7 @@ def write_checkpoint(
         episodes=episode_counts(venv),
         best_mean_reward=best_mean_reward,
     )
-    write_json_atomic(paths.checkpoint, asdict(checkpoint))
+    write_json_atomic(paths.checkpoint, asdict(checkpoint), indent=2, sort_keys=True)
     _prune(paths, keep=KEEP_CHECKPOINTS)
     logger.info("checkpoint at %d steps: %s", checkpoint.num_timesteps, model_path)
     return checkpoint

@@ -7,12 +7,19 @@ of :func:`branch_gym.training.train.train`, not configuration.
 
 from __future__ import annotations
 
-import math
-import numbers
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 from branch_gym import ENV_ID, ENV_IDS
+from branch_gym.config_utils import flatten_dict, is_number
+from branch_gym.env.config import env_config_from_kwargs
+from branch_gym.env.reward import RewardConfig
+from branch_gym.sim.validation import (
+    require_finite,
+    require_int,
+    require_non_negative,
+    require_positive,
+)
 from branch_gym.training.seeds import MAX_EVAL_TREES, MAX_RUN_SEEDS
 
 # Fields a resumed run may change: the step target and the checkpoint and evaluation periods.
@@ -65,22 +72,16 @@ class PPOConfig:
     first_action_logit_init: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("n_steps", "batch_size", "n_epochs"):
-            _require_int(f"PPOConfig.{name}", getattr(self, name), minimum=1)
-        for name in ("learning_rate", "clip_range", "max_grad_norm"):
-            _require_number(f"PPOConfig.{name}", getattr(self, name), positive=True)
-        for name in ("ent_coef", "vf_coef"):
-            _require_number(f"PPOConfig.{name}", getattr(self, name), positive=False)
+        require_int(self, "n_steps", "batch_size", "n_epochs", minimum=1)
+        require_positive(self, "learning_rate", "clip_range", "max_grad_norm")
+        require_non_negative(self, "ent_coef", "vf_coef")
         if self.target_kl is not None:
-            _require_number("PPOConfig.target_kl", self.target_kl, positive=True)
+            require_positive(self, "target_kl")
         for name in ("gamma", "gae_lambda"):
             value = getattr(self, name)
-            if not (_is_number(value) and 0.0 < value <= 1.0):
+            if not (is_number(value) and 0.0 < value <= 1.0):
                 raise ValueError(f"PPOConfig.{name} must be in (0, 1], got {value!r}")
-        for name in ("log_std_init", "first_action_logit_init"):
-            value = getattr(self, name)
-            if not (_is_number(value) and math.isfinite(value)):
-                raise ValueError(f"PPOConfig.{name} must be finite, got {value!r}")
+        require_finite(self, "log_std_init", "first_action_logit_init")
 
     def sb3_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of ``stable_baselines3.PPO``."""
@@ -144,12 +145,11 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.env_id not in ENV_IDS:
             raise ValueError(f"TrainConfig.env_id must be one of {ENV_IDS}, got {self.env_id!r}")
-        _require_int("TrainConfig.timesteps", self.timesteps, minimum=1)
-        _require_int("TrainConfig.n_envs", self.n_envs, minimum=1)
-        _require_int("TrainConfig.seed", self.seed, minimum=0, maximum=MAX_RUN_SEEDS - 1)
-        _require_int("TrainConfig.checkpoint_every", self.checkpoint_every, minimum=1)
-        _require_int("TrainConfig.eval_every", self.eval_every, minimum=0)
-        _require_int("TrainConfig.eval_trees", self.eval_trees, minimum=1, maximum=MAX_EVAL_TREES)
+        require_int(self, "timesteps", "n_envs", minimum=1)
+        require_int(self, "seed", minimum=0, maximum=MAX_RUN_SEEDS - 1)
+        require_int(self, "checkpoint_every", minimum=1)
+        require_int(self, "eval_every", minimum=0)
+        require_int(self, "eval_trees", minimum=1, maximum=MAX_EVAL_TREES)
         if not isinstance(self.render_tracking_frames, bool):
             raise ValueError(
                 "TrainConfig.render_tracking_frames must be a bool, got "
@@ -165,8 +165,6 @@ class TrainConfig:
                 f"PPOConfig.batch_size ({self.ppo.batch_size}) must be at most n_steps * n_envs "
                 f"({rollout})"
             )
-        from branch_gym.env.config import env_config_from_kwargs
-
         env_config_from_kwargs(self.env_kwargs())  # ValueError naming a bad scan setting
 
     def env_kwargs(self) -> dict[str, Any]:
@@ -182,8 +180,6 @@ class TrainConfig:
         if not self.render_tracking_frames:
             kwargs["render_tracking_frames"] = False
         if self.time_penalty_per_s is not None:
-            from branch_gym.env.reward import RewardConfig
-
             kwargs["reward"] = RewardConfig(time_penalty_per_s=self.time_penalty_per_s)
         return kwargs
 
@@ -222,42 +218,9 @@ class TrainConfig:
         Returns:
             ``"name: saved -> new"`` for each conflicting field; empty when resumable.
         """
-        old, new = _flat(saved.to_dict()), _flat(self.to_dict())
+        old, new = flatten_dict(saved.to_dict()), flatten_dict(self.to_dict())
         return [
             f"{key}: {old.get(key)!r} -> {new.get(key)!r}"
             for key in sorted(old.keys() | new.keys())
             if key not in RESUMABLE_CHANGES and old.get(key) != new.get(key)
         ]
-
-
-def _flat(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in data.items():
-        if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
-
-
-def _is_number(value: object) -> bool:
-    """A real number (bool excluded)."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
-
-
-def _require_int(name: str, value: object, minimum: int, maximum: int | None = None) -> None:
-    ok = isinstance(value, numbers.Integral) and not isinstance(value, bool) and value >= minimum
-    if ok and maximum is not None:
-        ok = value <= maximum
-    if not ok:
-        bound = f"in [{minimum}, {maximum}]" if maximum is not None else f">= {minimum}"
-        raise ValueError(f"{name} must be an int {bound}, got {value!r}")
-
-
-def _require_number(name: str, value: object, positive: bool) -> None:
-    ok = _is_number(value) and math.isfinite(value) and (value > 0 if positive else value >= 0)
-    if not ok:
-        raise ValueError(
-            f"{name} must be a {'positive' if positive else 'non-negative'} "
-            f"finite number, got {value!r}"
-        )

@@ -33,8 +33,6 @@ def make_env(config: TrainConfig, rank: int) -> gym.Env:
     import cv2
     import torch
 
-    import branch_gym  # noqa: F401  (registers the ids in a fresh worker process)
-
     cv2.setNumThreads(_WORKER_THREADS)
     torch.set_num_threads(_WORKER_THREADS)
     env = gym.make(config.env_id, **config.env_kwargs())
@@ -65,8 +63,6 @@ def make_train_env(config: TrainConfig, normalizer: Any = None) -> Any:
 
 def make_eval_env(config: TrainConfig) -> gym.Env:
     """The evaluation env: the training settings, in this process, trees chosen per reset."""
-    import branch_gym  # noqa: F401
-
     return gym.make(config.env_id, **config.env_kwargs())
 
 

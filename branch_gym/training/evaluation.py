@@ -18,10 +18,13 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from branch_gym.training.callbacks import FINAL_METRICS_KEY, scan_metrics
+from agents.ppo import PolicyAgent
+from agents.protocol import Agent
+from branch_gym.env.info import final_metrics
+from branch_gym.evaluation.episodes import evaluate_policy
+from branch_gym.training.callbacks import scan_metrics
 from branch_gym.training.checkpoints import save_model
 from branch_gym.training.paths import RunPaths
-from branch_gym.training.policy import PolicyAgent
 
 logger = logging.getLogger(__name__)
 
@@ -54,30 +57,23 @@ class EvalResult:
 
 
 def evaluate_policy_on_trees(
-    agent: Any, env: Any, tree_seeds: list[int], num_timesteps: int = 0
+    agent: Agent, env: Any, tree_seeds: list[int], num_timesteps: int = 0
 ) -> EvalResult:
     """Play one deterministic episode per tree seed and average the scan metrics.
 
     Args:
-        agent: Anything with SB3's ``predict`` (e.g. :class:`PolicyAgent`).
+        agent: Anything with SB3's ``predict`` (e.g. :class:`agents.ppo.PolicyAgent`).
         env: A single ``BranchScan`` env (not vectorised).
         tree_seeds: The trees to scan.
         num_timesteps: Recorded in the result.
     """
-    returns: list[float] = []
-    rows: list[dict[str, float]] = []
-    for tree_seed in tree_seeds:
-        obs, _ = env.reset(seed=tree_seed)
-        episode_start, done, total = True, False, 0.0
-        info: dict[str, Any] = {}
-        while not done:
-            action, _ = agent.predict(obs, episode_start=episode_start, deterministic=True)
-            obs, reward, terminated, truncated, info = env.step(action)
-            total += float(reward)
-            episode_start, done = False, terminated or truncated
-        returns.append(total)
-        final = info.get(FINAL_METRICS_KEY)
-        rows.append(scan_metrics(final) if final is not None else {})
+    episodes = evaluate_policy(agent, env, tree_seeds)
+    rows = [
+        scan_metrics(final_metrics(episode.result, with_timings=False))
+        if episode.terminated
+        else {}
+        for episode in episodes
+    ]
 
     def mean(name: str) -> float:
         values = [row[name] for row in rows if name in row]
@@ -85,7 +81,7 @@ def evaluate_policy_on_trees(
 
     return EvalResult(
         num_timesteps=int(num_timesteps),
-        mean_reward=float(np.mean(returns)),
+        mean_reward=float(np.mean([episode.episode_return for episode in episodes])),
         missed_pct=mean("missed_pct"),
         spurious_pct=mean("spurious_pct"),
         scan_time_s=mean("scan_time_s"),

@@ -28,14 +28,7 @@ CHECKPOINT_FILE = "checkpoint.json"
 BEST_MODEL = "best_model.zip"
 FINAL_MODEL = "final_model.zip"
 EVALUATIONS_FILE = "evaluations.jsonl"
-NORMALIZER_SUFFIX = "_vecnormalize.pkl"
 KEEP_CHECKPOINTS = 2  # our choice: the latest and the one before, in case the latest is torn
-
-
-def normalizer_path(model_path: Path) -> Path:
-    """The ``VecNormalize`` statistics file that belongs to a model file."""
-    model_path = Path(model_path)
-    return model_path.with_name(model_path.stem + NORMALIZER_SUFFIX)
 
 
 @dataclass(frozen=True)

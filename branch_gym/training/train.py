@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from agents.ppo import load_model, load_normalizer
 from branch_gym.training.callbacks import ScanMetricsCallback, TqdmCallback
 from branch_gym.training.checkpoints import (
     CheckpointCallback,
@@ -34,7 +35,6 @@ from branch_gym.training.envs import (
 )
 from branch_gym.training.evaluation import EvalResult, HeldOutEvalCallback
 from branch_gym.training.paths import TB_LOG_NAME, RunPaths
-from branch_gym.training.policy import load_model, load_normalizer
 from branch_gym.training.seeds import eval_tree_seeds, train_seed_range
 
 logger = logging.getLogger(__name__)

@@ -36,6 +36,7 @@ from skimage.morphology import medial_axis, skeletonize
 from recon.curve2d.skeleton_graph import SkeletonGraph
 from recon.curve2d.skeleton_trace import build_graph
 from recon.frame import as_binary_mask
+from recon.validation import require_non_negative
 
 __all__ = ["SkeletonConfig", "extract_skeleton", "preprocess_mask"]
 
@@ -78,18 +79,12 @@ class SkeletonConfig:
     medial_axis_seed: int = 0
 
     def __post_init__(self) -> None:
-        if self.border_px < 0:
-            raise ValueError(f"border_px must be >= 0, got {self.border_px}")
-        if self.max_hole_area_px < 0:
-            raise ValueError(f"max_hole_area_px must be >= 0, got {self.max_hole_area_px}")
+        require_non_negative(self, "border_px", "max_hole_area_px", finite=False)
         if self.method not in ("skeletonize", "medial_axis"):
             raise ValueError(f"method must be 'skeletonize' or 'medial_axis', got {self.method!r}")
         if not 0.0 <= self.radius_offset_px < 1.0:
             raise ValueError(f"radius_offset_px must be in [0, 1), got {self.radius_offset_px}")
-        if self.spur_prune_factor < 0.0:
-            raise ValueError(f"spur_prune_factor must be >= 0, got {self.spur_prune_factor}")
-        if self.border_extension_px < 0:
-            raise ValueError(f"border_extension_px must be >= 0, got {self.border_extension_px}")
+        require_non_negative(self, "spur_prune_factor", "border_extension_px", finite=False)
 
 
 def preprocess_mask(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()) -> np.ndarray:

@@ -15,6 +15,7 @@ import numpy as np
 from recon.curve2d.skeleton import SkeletonConfig
 from recon.curve2d.skeleton_graph import SkeletonGraph
 from recon.geometry.bezier import CubicBezier
+from recon.validation import require_non_negative, require_positive
 
 MIN_FIT_PIXELS = 4  # a cubic Bezier has 4 control points
 # Newton steps after the dense seed when classifying pixels as inliers: one step from a seed at
@@ -77,22 +78,10 @@ class Curve2DConfig:
             raise ValueError("motion_direction_uv must be non-zero")
         if self.score not in ("unique_rows", "projected_extent"):
             raise ValueError(f"score must be 'unique_rows' or 'projected_extent', got {self.score}")
-        positive = {
-            "inlier_threshold_px": self.inlier_threshold_px,
-            "sample_spacing_px": self.sample_spacing_px,
-            "radius_fence_iqr": self.radius_fence_iqr,
-        }
-        for name, value in positive.items():
-            if not (math.isfinite(value) and value > 0.0):
-                raise ValueError(f"{name} must be positive, got {value}")
-        non_negative = {
-            "min_primary_length_px": self.min_primary_length_px,
-            "min_primary_elongation": self.min_primary_elongation,
-            "min_secondary_length_px": self.min_secondary_length_px,
-        }
-        for name, value in non_negative.items():
-            if not (math.isfinite(value) and value >= 0.0):
-                raise ValueError(f"{name} must be >= 0, got {value}")
+        require_positive(self, "inlier_threshold_px", "sample_spacing_px", "radius_fence_iqr")
+        require_non_negative(
+            self, "min_primary_length_px", "min_primary_elongation", "min_secondary_length_px"
+        )
         if not 0.0 < self.max_secondary_bend_deg <= 180.0:
             raise ValueError(
                 f"max_secondary_bend_deg must be in (0, 180], got {self.max_secondary_bend_deg}"

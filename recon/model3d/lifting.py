@@ -7,7 +7,6 @@ each surviving surface point to the branch axis by its 3D radius along the viewi
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -17,6 +16,7 @@ from recon.camera import invert_pose, projection_matrix, transform_points
 from recon.config import ModelerConfig
 from recon.frame import Frame
 from recon.geometry.triangulate import triangulate_points
+from recon.timing import stage_timer
 from recon.tracking import PointTracker
 
 
@@ -87,12 +87,12 @@ def lift_pixels(
         raise ValueError(f"{len(query_px)} query pixels but {len(radii_px)} radii")
     if len(query_px) == 0:
         return LiftedPoints.empty()
-    t0 = time.perf_counter()
-    tracks = tracker.track(frames, query_px)
-    t1 = time.perf_counter()
-    projections = np.stack([projection_matrix(f.intrinsics, f.T_world_camera) for f in frames])
-    surface, reprojection = triangulate_points(tracks.pixels, projections)
-    t2 = time.perf_counter()
+    timings: dict[str, float] = {}
+    with stage_timer(timings, "tracking_ms"):
+        tracks = tracker.track(frames, query_px)
+    with stage_timer(timings, "triangulation_ms"):
+        projections = np.stack([projection_matrix(f.intrinsics, f.T_world_camera) for f in frames])
+        surface, reprojection = triangulate_points(tracks.pixels, projections)
 
     newest = frames[-1]
     depth = transform_points(invert_pose(newest.T_world_camera), np.nan_to_num(surface))[:, 2]
@@ -110,5 +110,4 @@ def lift_pixels(
     rays = surface[index] - camera_center
     rays /= np.linalg.norm(rays, axis=1, keepdims=True)
     centers = surface[index] + rays * radii_m[:, None]
-    timings = {"tracking_ms": (t1 - t0) * 1e3, "triangulation_ms": (t2 - t1) * 1e3}
     return LiftedPoints(index, centers, radii_m, depth[index], reprojection[index], timings)

@@ -13,6 +13,7 @@ import numpy as np
 from recon.camera import project_points, unproject_pixels
 from recon.frame import Frame
 from recon.tracking.tracks import Tracks, check_window
+from recon.validation import require_positive
 
 
 @dataclass(frozen=True)
@@ -28,10 +29,7 @@ class DepthOracleConfig:
     occlusion_tolerance_m: float = 0.002
 
     def __post_init__(self) -> None:
-        if not self.occlusion_tolerance_m > 0.0:
-            raise ValueError(
-                f"occlusion_tolerance_m must be positive, got {self.occlusion_tolerance_m}"
-            )
+        require_positive(self, "occlusion_tolerance_m", finite=False)
 
 
 class DepthOracleTracker:

@@ -16,6 +16,7 @@ import numpy as np
 
 from recon.frame import Frame
 from recon.tracking.tracks import Tracks, check_window
+from recon.validation import require_non_negative, require_positive
 
 logger = logging.getLogger(__name__)
 
@@ -61,19 +62,11 @@ class LucasKanadeConfig:
             raise ValueError(f"window_size_px must be odd and >= 3, got {self.window_size_px}")
         if self.max_pyramid_level < 0:
             raise ValueError(f"max_pyramid_level must be >= 0, got {self.max_pyramid_level}")
-        if not self.forward_backward_threshold_px > 0.0:
-            raise ValueError(
-                "forward_backward_threshold_px must be positive, "
-                f"got {self.forward_backward_threshold_px}"
-            )
+        require_positive(self, "forward_backward_threshold_px", finite=False)
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
-        if not self.epsilon_px > 0.0:
-            raise ValueError(f"epsilon_px must be positive, got {self.epsilon_px}")
-        if not self.min_eigen_threshold >= 0.0:
-            raise ValueError(f"min_eigen_threshold must be >= 0, got {self.min_eigen_threshold}")
-        if not self.border_margin_px >= 0.0:
-            raise ValueError(f"border_margin_px must be >= 0, got {self.border_margin_px}")
+        require_positive(self, "epsilon_px", finite=False)
+        require_non_negative(self, "min_eigen_threshold", "border_margin_px", finite=False)
         if self.crop_margin_px is not None and self.crop_margin_px < self.window_size_px:
             raise ValueError(
                 f"crop_margin_px must be None or >= window_size_px, got {self.crop_margin_px}"

@@ -1,11 +1,14 @@
 """The simulated UR5e with an eye-in-hand camera: state, forward kinematics, contact checks.
 
-The class :class:`UR5e` lives here; two mixins add what it does with that state:
+The class :class:`UR5e` lives here. It owns two parts that it hands what they need explicitly
+(panda-gym style composition) and delegates to:
 
-* ``branch_gym/sim/robot/motion.py``: camera twists, damped least-squares twist control
-  (:meth:`UR5e.apply_camera_twist`) and straight-line moves (:meth:`UR5e.move_camera_to`);
-  also :func:`camera_twist_from_world` and :func:`orbit_camera_twist`.
-* ``branch_gym/sim/robot/ik.py``: camera-pose inverse kinematics (:meth:`UR5e.solve_ik`).
+* :class:`branch_gym.sim.robot.motion.CameraMotion`: camera twists, damped least-squares twist
+  control (:meth:`UR5e.apply_camera_twist`) and straight-line moves (:meth:`UR5e.move_camera_to`),
+  given the robot's :class:`KinematicState`, its Jacobian provider and a checked commit
+  (``motion.py`` also has :func:`camera_twist_from_world` and :func:`orbit_camera_twist`);
+* :class:`branch_gym.sim.robot.ik.CameraIK`: camera-pose inverse kinematics
+  (:meth:`UR5e.solve_ik`), given the base pose, the camera mount and the joint limits.
 
 Configuration and outcome types (:class:`RobotConfig`, :class:`MotionStatus`,
 :class:`InverseKinematicsError`) live in ``branch_gym/sim/robot/config.py``.
@@ -25,12 +28,13 @@ import pybullet
 from branch_gym.sim.bullet import Bullet
 from branch_gym.sim.robot import ur5e
 from branch_gym.sim.robot.camera_mount import T_flange_camera
-from branch_gym.sim.robot.config import (
-    RobotConfig,
-)
-from branch_gym.sim.robot.ik import CameraIKMixin
+from branch_gym.sim.robot.config import MotionStatus, RobotConfig
+from branch_gym.sim.robot.ik import CameraIK
 from branch_gym.sim.robot.motion import (
-    CameraMotionMixin,
+    CameraMotion,
+    KinematicState,
+    camera_frame_jacobian,
+    manipulability,
 )
 from branch_gym.sim.robot.ur5e_spec import (
     CAMERA_LINK,
@@ -45,7 +49,7 @@ __all__ = ["UR5e"]
 _ZEROS6 = [0.0] * N_JOINTS
 
 
-class UR5e(CameraMotionMixin, CameraIKMixin):
+class UR5e:
     """A UR5e with a camera on its flange, loaded into one :class:`Bullet` world.
 
     ``bullet.reset()`` removes the robot with every other body: build a new ``UR5e`` afterwards.
@@ -54,6 +58,8 @@ class UR5e(CameraMotionMixin, CameraIKMixin):
         bullet: The world the robot lives in.
         config: Its configuration.
         body_id: pybullet body id of the arm.
+        motion: Its camera motion (:class:`CameraMotion`), behind :meth:`apply_camera_twist` and
+            :meth:`move_camera_to`.
     """
 
     def __init__(
@@ -103,14 +109,20 @@ class UR5e(CameraMotionMixin, CameraIKMixin):
         self._bullet_reset_joints = bullet.p.resetJointStatesMultiDof
         self._bullet_link_state = bullet.p.getLinkState
         self._T_world_base = base.T_world_base
-        self._T_base_world = np.linalg.inv(self._T_world_base)
-        self._T_flange_camera = T_flange_camera(self.config.mount)
-        self._limit_rad = JOINT_LIMIT_RAD - math.radians(self.config.joint_limit_margin_deg)
+        limit_rad = JOINT_LIMIT_RAD - math.radians(self.config.joint_limit_margin_deg)
         self._obstacle_ids: tuple[int, ...] = ()
         self._obstacle_links: list[tuple[int, range]] = []
-        self._q = np.zeros(N_JOINTS)
-        self._T_world_camera = np.eye(4)
-        self._J_world = np.zeros((6, N_JOINTS))
+        self._state = KinematicState(np.zeros(N_JOINTS), np.eye(4), np.zeros((6, N_JOINTS)))
+        self.motion = CameraMotion(
+            self.config,
+            limit_rad,
+            state=self._kinematic_state,
+            world_jacobian=self._world_jacobian,
+            commit=self._commit_checked,
+        )
+        self._ik = CameraIK(
+            self.config, self._T_world_base, T_flange_camera(self.config.mount), limit_rad
+        )
         self.set_joint_positions(base.home_seed_q if q is None else q)
 
     # --- state ---------------------------------------------------------------------------
@@ -118,7 +130,7 @@ class UR5e(CameraMotionMixin, CameraIKMixin):
     @property
     def q(self) -> np.ndarray:
         """(6,) current joint angles in radians (a copy)."""
-        return self._q.copy()
+        return self._state.q.copy()
 
     @property
     def T_world_base(self) -> np.ndarray:
@@ -151,19 +163,76 @@ class UR5e(CameraMotionMixin, CameraIKMixin):
         self._apply_q(q, self._world_jacobian(q))
 
     def _apply_q(self, q: np.ndarray, J_world: np.ndarray) -> None:
+        """Set the joints and cache the state at ``q`` (pybullet's camera pose, ``J_world``)."""
         self._bullet_reset_joints(self.body_id, self._joint_indices, [[float(v)] for v in q])
-        state = self._bullet_link_state(
+        link = self._bullet_link_state(
             self.body_id, self._camera_link, computeForwardKinematics=True
         )
-        self._T_world_camera = _pose_from_pybullet(state[4], state[5])
-        self._q = q.copy()
-        self._J_world = J_world
+        self._state = KinematicState(q.copy(), _pose_from_pybullet(link[4], link[5]), J_world)
+
+    def _kinematic_state(self) -> KinematicState:
+        """The cached state (not copied: for the parts the robot owns, which do not mutate it)."""
+        return self._state
+
+    def _commit_checked(self, q: np.ndarray, J_world: np.ndarray) -> str | None:
+        """Set the joints to ``q``; on contact put the previous state back and describe it."""
+        previous = self._state
+        self._apply_q(q, J_world)
+        contact = self.check_collision()
+        if contact is not None:
+            self._apply_q(previous.q, previous.J_world)
+        return contact
+
+    # --- motion and inverse kinematics (delegated) ---------------------------------------
+
+    def apply_camera_twist(self, twist_camera: np.ndarray, dt_s: float) -> MotionStatus:
+        """Move the camera with a constant camera-frame twist for ``dt_s`` seconds.
+
+        See :meth:`branch_gym.sim.robot.motion.CameraMotion.apply_camera_twist`.
+        """
+        return self.motion.apply_camera_twist(twist_camera, dt_s)
+
+    def move_camera_to(
+        self,
+        T_world_camera_target: np.ndarray,
+        speed_mps: float,
+        angular_speed_radps: float = 0.5,
+        max_duration_s: float | None = None,
+    ) -> MotionStatus:
+        """Move the camera to a pose along a straight line, turning along the shortest rotation.
+
+        Proportional law on the world-frame pose error, saturated so that neither speed exceeds
+        its limit (:meth:`branch_gym.sim.robot.motion.CameraMotion.move_camera_to`).
+
+        Args:
+            T_world_camera_target: (4, 4) target camera pose.
+            speed_mps: Linear speed limit of the camera origin (m/s).
+            angular_speed_radps: Angular speed limit (rad/s). Our default: 0.5 rad/s.
+            max_duration_s: Give up ("timeout") after this much simulated time; by default twice
+                the saturated travel time plus 2 s.
+
+        Returns:
+            The status; ``elapsed_s`` is the simulated time the move took.
+        """
+        return self.motion.move_camera_to(
+            T_world_camera_target, speed_mps, angular_speed_radps, max_duration_s
+        )
+
+    def solve_ik(
+        self, T_world_camera_target: np.ndarray, q_seed: np.ndarray | None = None
+    ) -> np.ndarray:
+        """Joint angles that put the camera at a pose (the robot does not move).
+
+        See :meth:`branch_gym.sim.robot.ik.CameraIK.solve`; ``q_seed`` defaults to the current
+        joint angles.
+        """
+        return self._ik.solve(T_world_camera_target, self._state.q if q_seed is None else q_seed)
 
     # --- kinematics ----------------------------------------------------------------------
 
     def T_world_camera(self) -> np.ndarray:
         """(4, 4) camera pose (OpenCV axes) in the world, from pybullet's forward kinematics."""
-        return self._T_world_camera.copy()
+        return self._state.T_world_camera.copy()
 
     def T_world_flange(self) -> np.ndarray:
         """(4, 4) tool-flange pose (UR ``tool0``: z out of the flange) in the world."""
@@ -184,18 +253,11 @@ class UR5e(CameraMotionMixin, CameraIKMixin):
 
     def camera_jacobian(self) -> np.ndarray:
         """(6, 6) Jacobian mapping joint rates (rad/s) to the camera twist [v, w] in camera axes."""
-        return self._camera_frame(self._J_world, self._T_world_camera[:3, :3])
-
-    @staticmethod
-    def _camera_frame(J_world: np.ndarray, R_world_camera: np.ndarray) -> np.ndarray:
-        J = np.empty_like(J_world)
-        J[:3] = R_world_camera.T @ J_world[:3]
-        J[3:] = R_world_camera.T @ J_world[3:]
-        return J
+        return camera_frame_jacobian(self._state.J_world, self._state.T_world_camera[:3, :3])
 
     def manipulability(self) -> float:
         """``sqrt(det(J J^T))`` of the camera Jacobian at the current configuration."""
-        return abs(float(np.linalg.det(self._J_world)))
+        return manipulability(self._state.J_world)
 
     # --- checks --------------------------------------------------------------------------
 

@@ -14,6 +14,7 @@ from typing import Literal
 from branch_gym.sim.robot.camera_mount import CameraMountConfig
 from branch_gym.sim.robot.home import BasePlacement
 from branch_gym.sim.robot.ur5e_spec import JOINT_LIMIT_RAD
+from branch_gym.sim.validation import require_non_negative, require_positive
 
 MotionReason = Literal["ok", "singularity", "joint_limit", "joint_speed", "collision", "timeout"]
 
@@ -115,14 +116,8 @@ class RobotConfig:
             "move_position_tolerance_m",
             "move_angle_tolerance_deg",
         )
-        for name in positive:
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"RobotConfig.{name} must be positive and finite, got {value}")
-        for name in ("damping_max", "collision_margin_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"RobotConfig.{name} must be >= 0 and finite, got {value}")
+        require_positive(self, *positive)
+        require_non_negative(self, "damping_max", "collision_margin_m")
         if self.ground_height_m is not None and not math.isfinite(self.ground_height_m):
             raise ValueError(
                 f"RobotConfig.ground_height_m must be finite, got {self.ground_height_m}"

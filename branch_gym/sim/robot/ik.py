@@ -1,9 +1,8 @@
 """Inverse kinematics of the camera pose for the simulated UR5e (``branch_gym/sim/robot/arm.py``).
 
 The DH solver (:func:`branch_gym.sim.robot.kinematics.dh_inverse_kinematics`) with the robot's base
-pose, camera mount, IK tolerances and joint limits. :class:`CameraIKMixin` is one of the bases of
-:class:`branch_gym.sim.robot.arm.UR5e`, which provides ``config``, ``q``, ``_T_base_world``,
-``_T_flange_camera`` and ``_limit_rad``.
+pose, camera mount, IK tolerances and joint limits. :class:`CameraIK` holds those; the robot
+(:class:`branch_gym.sim.robot.arm.UR5e`) owns one and passes it the seed.
 """
 
 from __future__ import annotations
@@ -17,17 +16,29 @@ from branch_gym.sim.robot.kinematics import check_transform, dh_inverse_kinemati
 from branch_gym.sim.robot.ur5e_spec import N_JOINTS
 
 
-class CameraIKMixin:
-    """Camera-pose inverse kinematics (mixed into ``UR5e``)."""
+class CameraIK:
+    """Camera-pose inverse kinematics of one robot (owned by ``UR5e``).
 
-    config: RobotConfig
-    _T_base_world: np.ndarray
-    _T_flange_camera: np.ndarray
-    _limit_rad: float
+    Args:
+        config: IK iterations, step and tolerances.
+        T_world_base: (4, 4) pose of the robot base in the world.
+        T_flange_camera: (4, 4) camera pose in the tool-flange frame (the mount).
+        limit_rad: Joint limit (rad, symmetric) less the margin.
+    """
 
-    def solve_ik(
-        self, T_world_camera_target: np.ndarray, q_seed: np.ndarray | None = None
-    ) -> np.ndarray:
+    def __init__(
+        self,
+        config: RobotConfig,
+        T_world_base: np.ndarray,
+        T_flange_camera: np.ndarray,
+        limit_rad: float,
+    ) -> None:
+        self.config = config
+        self._T_base_world = np.linalg.inv(T_world_base)
+        self._T_flange_camera = T_flange_camera
+        self._limit_rad = limit_rad
+
+    def solve(self, T_world_camera_target: np.ndarray, q_seed: np.ndarray) -> np.ndarray:
         """Joint angles that put the camera at a pose, by damped Newton steps on the DH model.
 
         Converges to the solution on the seed's IK branch (elbow, wrist flip); it does not move
@@ -35,7 +46,7 @@ class CameraIKMixin:
 
         Args:
             T_world_camera_target: (4, 4) target camera pose in the world.
-            q_seed: (6,) start (rad); the current joint angles if None.
+            q_seed: (6,) start (rad).
 
         Returns:
             (6,) joint angles in radians, within the joint limits less the margin.
@@ -46,7 +57,7 @@ class CameraIKMixin:
                 joint limit.
         """
         T_target = check_transform(T_world_camera_target, "T_world_camera_target")
-        q = self.q if q_seed is None else np.asarray(q_seed, dtype=float).copy()
+        q = np.asarray(q_seed, dtype=float).copy()
         if q.shape != (N_JOINTS,) or not np.all(np.isfinite(q)):
             raise ValueError(f"q_seed must be a finite ({N_JOINTS},) vector, got {q_seed}")
         config = self.config

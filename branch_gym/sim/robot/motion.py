@@ -5,17 +5,19 @@ squares on the pybullet Jacobian of the camera link, integrated with the midpoin
 control step. Each step is checked before it is kept, and a failed step leaves the robot where it
 was and says why (:class:`MotionStatus`): singularity, joint limit, joint speed or collision.
 
-:class:`CameraMotionMixin` is one of the bases of :class:`branch_gym.sim.robot.arm.UR5e`, which
-provides the state and the checks it uses: ``config``, ``_q``, ``_T_world_camera``, ``_J_world``,
-``_limit_rad``, ``manipulability()``, ``_camera_frame()``, ``_world_jacobian()``, ``_apply_q()``
-and ``check_collision()``.
+:class:`CameraMotion` does this for :class:`branch_gym.sim.robot.arm.UR5e`, which owns one and
+hands it everything it uses explicitly: the configuration and joint limit, the current
+:class:`KinematicState`, a Jacobian provider (joint angles -> world-axes Jacobian) and a checked
+commit of a new joint vector. It holds no state of its own.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 
@@ -24,6 +26,36 @@ from branch_gym.sim.robot.kinematics import check_transform, pose_error, rotatio
 from branch_gym.sim.robot.ur5e_spec import JOINT_NAMES
 
 logger = logging.getLogger(__name__)
+
+JacobianProvider = Callable[[np.ndarray], np.ndarray]
+"""Joint angles (6,) -> (6, 6) Jacobian of the camera origin, world axes (state untouched)."""
+
+
+class KinematicState(NamedTuple):
+    """The arm's cached kinematic state at one joint vector.
+
+    Attributes:
+        q: (6,) joint angles in radians.
+        T_world_camera: (4, 4) camera pose (OpenCV axes) in the world.
+        J_world: (6, 6) Jacobian of the camera origin at ``q``, world axes.
+    """
+
+    q: np.ndarray
+    T_world_camera: np.ndarray
+    J_world: np.ndarray
+
+
+def camera_frame_jacobian(J_world: np.ndarray, R_world_camera: np.ndarray) -> np.ndarray:
+    """(6, 6) Jacobian to the camera twist [v, w] in camera axes, from the world-axes one."""
+    J = np.empty_like(J_world)
+    J[:3] = R_world_camera.T @ J_world[:3]
+    J[3:] = R_world_camera.T @ J_world[3:]
+    return J
+
+
+def manipulability(J_world: np.ndarray) -> float:
+    """``sqrt(det(J J^T))`` of a square Jacobian (rotating its rows does not change it)."""
+    return abs(float(np.linalg.det(J_world)))
 
 
 def camera_twist_from_world(
@@ -72,14 +104,31 @@ def orbit_camera_twist(
     return camera_twist_from_world(T_world_camera, np.cross(omega_world, lever_m), omega_world)
 
 
-class CameraMotionMixin:
-    """Twist control and straight-line moves of the camera (mixed into ``UR5e``)."""
+class CameraMotion:
+    """Twist control and straight-line moves of an arm's camera (owned by ``UR5e``).
 
-    config: RobotConfig
-    _q: np.ndarray
-    _T_world_camera: np.ndarray
-    _J_world: np.ndarray
-    _limit_rad: float
+    Args:
+        config: Control step, damping, speed limits, singularity threshold, move gains.
+        limit_rad: Joint limit (rad, symmetric) less the margin.
+        state: Returns the arm's current kinematic state.
+        world_jacobian: The Jacobian provider.
+        commit: Sets the joints to ``q`` (with its Jacobian) and checks for contact; on contact
+            it puts the previous state back and returns the description, else returns None.
+    """
+
+    def __init__(
+        self,
+        config: RobotConfig,
+        limit_rad: float,
+        state: Callable[[], KinematicState],
+        world_jacobian: JacobianProvider,
+        commit: Callable[[np.ndarray, np.ndarray], str | None],
+    ) -> None:
+        self.config = config
+        self._limit_rad = limit_rad
+        self._state = state
+        self._world_jacobian = world_jacobian
+        self._commit = commit
 
     def apply_camera_twist(self, twist_camera: np.ndarray, dt_s: float) -> MotionStatus:
         """Move the camera with a constant camera-frame twist for ``dt_s`` seconds.
@@ -106,7 +155,7 @@ class CameraMotionMixin:
             raise ValueError(f"dt_s must be positive and finite, got {dt_s}")
         n_steps = max(1, math.ceil(dt_s / self.config.control_time_step_s - 1e-9))
         step_s = dt_s / n_steps
-        status = MotionStatus(True, "ok", self.manipulability())
+        status = MotionStatus(True, "ok", manipulability(self._state().J_world))
         for k in range(n_steps):
             status = self._step(twist, step_s)
             if not status.ok:
@@ -118,24 +167,24 @@ class CameraMotionMixin:
         self, J_world: np.ndarray, R_world_camera: np.ndarray, twist: np.ndarray
     ) -> tuple[np.ndarray, float]:
         """Damped least-squares joint rates for a camera-frame twist, and the manipulability."""
-        U, sigma, Vt = np.linalg.svd(self._camera_frame(J_world, R_world_camera))
+        U, sigma, Vt = np.linalg.svd(camera_frame_jacobian(J_world, R_world_camera))
         gains = sigma / (sigma**2 + self._damping_sq(sigma[-1]))
         return Vt.T @ (gains * (U.T @ twist)), float(np.prod(sigma))
 
     def _step(self, twist: np.ndarray, step_s: float) -> MotionStatus:
         """One checked control step, integrated with the midpoint rule (second order)."""
         config = self.config
-        q = self._q
-        R_world_camera = self._T_world_camera[:3, :3]
-        q_rate, manipulability = self._joint_rates(self._J_world, R_world_camera, twist)
+        q, T_world_camera, J_world = self._state()
+        R_world_camera = T_world_camera[:3, :3]
+        q_rate, manipulability_now = self._joint_rates(J_world, R_world_camera, twist)
         # Midpoint: the camera's mid-step orientation is known from the commanded body rate.
         q_mid = q + 0.5 * step_s * q_rate
         R_mid = R_world_camera @ rotation_exp(0.5 * step_s * twist[3:])
         q_rate, _ = self._joint_rates(self._world_jacobian(q_mid), R_mid, twist)
         q_next = q + q_rate * step_s
         J_next = self._world_jacobian(q_next)
-        manipulability_next = abs(float(np.linalg.det(J_next)))
-        worst = min(manipulability, manipulability_next)
+        manipulability_next = manipulability(J_next)
+        worst = min(manipulability_now, manipulability_next)
         if worst < config.manipulability_threshold:
             return MotionStatus(
                 False,
@@ -144,30 +193,21 @@ class CameraMotionMixin:
                 detail=f"manipulability {worst:.4g} < {config.manipulability_threshold}",
             )
         speed_ratio = np.abs(q_rate) / config.max_joint_speed_radps
+        beyond = (np.abs(q_next) > self._limit_rad) & (np.abs(q_next) > np.abs(q))
         if np.any(speed_ratio > 1.0):
             joint = int(np.argmax(speed_ratio))
-            return MotionStatus(
-                False,
-                "joint_speed",
-                manipulability,
-                detail=f"{JOINT_NAMES[joint]} at {math.degrees(q_rate[joint]):.1f} deg/s",
-            )
-        beyond = (np.abs(q_next) > self._limit_rad) & (np.abs(q_next) > np.abs(q))
-        if np.any(beyond):
+            reason = "joint_speed"
+            detail = f"{JOINT_NAMES[joint]} at {math.degrees(q_rate[joint]):.1f} deg/s"
+        elif np.any(beyond):
             joint = int(np.argmax(beyond))
-            return MotionStatus(
-                False,
-                "joint_limit",
-                manipulability,
-                detail=f"{JOINT_NAMES[joint]} would reach {math.degrees(q_next[joint]):.1f} deg",
-            )
-        J_previous = self._J_world
-        self._apply_q(q_next, J_next)
-        contact = self.check_collision()
-        if contact is not None:
-            self._apply_q(q, J_previous)
-            return MotionStatus(False, "collision", manipulability, detail=contact)
-        return MotionStatus(True, "ok", manipulability_next)
+            reason = "joint_limit"
+            detail = f"{JOINT_NAMES[joint]} would reach {math.degrees(q_next[joint]):.1f} deg"
+        else:
+            contact = self._commit(q_next, J_next)
+            if contact is None:
+                return MotionStatus(True, "ok", manipulability_next)
+            reason, detail = "collision", contact
+        return MotionStatus(False, reason, manipulability_now, detail=detail)
 
     def _damping_sq(self, smallest_sigma: float) -> float:
         """lambda^2 of the variable-damping DLS: 0 above the band, up to damping_max^2 at 0."""
@@ -177,11 +217,7 @@ class CameraMotionMixin:
         return (1.0 - (smallest_sigma / band) ** 2) * self.config.damping_max**2
 
     def move_camera_to(
-        self,
-        T_world_camera_target: np.ndarray,
-        speed_mps: float,
-        angular_speed_radps: float = 0.5,
-        max_duration_s: float | None = None,
+        self, T_target: np.ndarray, speed_mps: float, angular_radps: float, max_s: float | None
     ) -> MotionStatus:
         """Move the camera to a pose along a straight line, turning along the shortest rotation.
 
@@ -190,44 +226,45 @@ class CameraMotionMixin:
         camera origin stays on the line and both arrive together.
 
         Args:
-            T_world_camera_target: (4, 4) target camera pose.
+            T_target: (4, 4) target camera pose.
             speed_mps: Linear speed limit of the camera origin (m/s).
-            angular_speed_radps: Angular speed limit (rad/s). Our default: 0.5 rad/s.
-            max_duration_s: Give up ("timeout") after this much simulated time; by default twice
-                the saturated travel time plus 2 s.
+            angular_radps: Angular speed limit (rad/s).
+            max_s: Give up ("timeout") after this much simulated time; if None twice the
+                saturated travel time plus 2 s.
 
         Returns:
             The status; ``elapsed_s`` is the simulated time the move took.
         """
-        T_target = check_transform(T_world_camera_target, "T_world_camera_target")
+        T_target = check_transform(T_target, "T_world_camera_target")
         if not (math.isfinite(speed_mps) and speed_mps > 0):
             raise ValueError(f"speed_mps must be positive, got {speed_mps}")
-        if not (math.isfinite(angular_speed_radps) and angular_speed_radps > 0):
-            raise ValueError(f"angular_speed_radps must be positive, got {angular_speed_radps}")
+        if not (math.isfinite(angular_radps) and angular_radps > 0):
+            raise ValueError(f"angular_speed_radps must be positive, got {angular_radps}")
         config = self.config
-        error = pose_error(T_target, self._T_world_camera)
-        if max_duration_s is None:
+        error = pose_error(T_target, self._state().T_world_camera)
+        if max_s is None:
             travel_s = max(
                 np.linalg.norm(error[:3]) / speed_mps,
-                np.linalg.norm(error[3:]) / angular_speed_radps,
+                np.linalg.norm(error[3:]) / angular_radps,
             )
-            max_duration_s = 2.0 * travel_s + 2.0
+            max_s = 2.0 * travel_s + 2.0
         angle_tolerance_rad = math.radians(config.move_angle_tolerance_deg)
         elapsed_s = 0.0
         while True:
-            error = pose_error(T_target, self._T_world_camera)
+            T_world_camera = self._state().T_world_camera
+            error = pose_error(T_target, T_world_camera)
             position_error_m = float(np.linalg.norm(error[:3]))
             angle_error_rad = float(np.linalg.norm(error[3:]))
             if (
                 position_error_m <= config.move_position_tolerance_m
                 and angle_error_rad <= angle_tolerance_rad
             ):
-                return MotionStatus(True, "ok", self.manipulability(), elapsed_s)
-            if elapsed_s >= max_duration_s:
+                return MotionStatus(True, "ok", manipulability(self._state().J_world), elapsed_s)
+            if elapsed_s >= max_s:
                 return MotionStatus(
                     False,
                     "timeout",
-                    self.manipulability(),
+                    manipulability(self._state().J_world),
                     elapsed_s,
                     detail=f"{position_error_m * 1e3:.2f} mm, "
                     f"{math.degrees(angle_error_rad):.3f} deg left after {elapsed_s:.2f} s",
@@ -236,10 +273,10 @@ class CameraMotionMixin:
             scale = min(
                 1.0,
                 speed_mps / max(np.linalg.norm(command[:3]), 1e-12),
-                angular_speed_radps / max(np.linalg.norm(command[3:]), 1e-12),
+                angular_radps / max(np.linalg.norm(command[3:]), 1e-12),
             )
             command *= scale
-            twist = camera_twist_from_world(self._T_world_camera, command[:3], command[3:])
+            twist = camera_twist_from_world(T_world_camera, command[:3], command[3:])
             status = self.apply_camera_twist(twist, config.control_time_step_s)
             elapsed_s += status.elapsed_s
             if not status.ok:

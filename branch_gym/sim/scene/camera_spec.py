@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from branch_gym.sim.validation import require_finite
+
 # Authors' simulated camera (reference.md, "Simulated world"): 320x240, 42 deg horizontal FoV.
 DEFAULT_WIDTH_PX = 320
 DEFAULT_HEIGHT_PX = 240
@@ -58,9 +60,7 @@ class CameraSpec:
             value = getattr(self, name)
             if int(value) != value or value <= 0:
                 raise ValueError(f"{name} must be a positive integer, got {value}")
-        for name in ("fx", "fy", "cx", "cy", "near_m", "far_m"):
-            if not math.isfinite(getattr(self, name)):
-                raise ValueError(f"{name} must be finite, got {getattr(self, name)}")
+        require_finite(self, "fx", "fy", "cx", "cy", "near_m", "far_m")
         if self.fx <= 0 or self.fy <= 0:
             raise ValueError(f"fx and fy must be positive, got fx={self.fx}, fy={self.fy}")
         if not 0 < self.near_m < self.far_m:

@@ -12,8 +12,7 @@ from __future__ import annotations
 
 import functools
 import itertools
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -21,6 +20,7 @@ import numpy as np
 from scipy.special import ndtr
 
 from branch_gym.sim.scene.tree_mesh import TILE_WIDTH_M
+from branch_gym.sim.validation import require_positive
 
 _COARSE_FACTOR = 4.0  # the shading layer's features are this much larger (our choice)
 _COARSE_WEIGHT = 0.5  # and this much weaker than the pattern (our choice)
@@ -80,10 +80,7 @@ class TextureConfig:
     def __post_init__(self) -> None:
         if self.size_px < 8:
             raise ValueError(f"size_px must be at least 8, got {self.size_px}")
-        for name in ("texel_m", "feature_min_m", "feature_max_m", "stretch_along"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
+        require_positive(self, "texel_m", "feature_min_m", "feature_max_m", "stretch_along")
         if self.feature_max_m < self.feature_min_m:
             raise ValueError(
                 f"feature_max_m ({self.feature_max_m}) must be >= feature_min_m "
@@ -121,14 +118,7 @@ FOLIAGE = TextureConfig(
     stretch_along=1.0,
     palette=FOLIAGE_PALETTE,
 )
-GROUND = TextureConfig(
-    size_px=256,
-    texel_m=0.01,
-    feature_min_m=0.05,
-    feature_max_m=0.3,
-    stretch_along=1.0,
-    palette=GROUND_PALETTE,
-)
+GROUND = replace(FOLIAGE, feature_min_m=0.05, palette=GROUND_PALETTE)
 
 
 def band_limited_noise(

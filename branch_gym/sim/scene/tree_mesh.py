@@ -34,6 +34,7 @@ from branch_gym.sim.scene.tube_rings import (
     rotation_minimising_frames,
     select_rings,
 )
+from branch_gym.sim.validation import require_positive
 
 __all__ = ["TILE_WIDTH_M", "TubeMesh", "TubeMeshConfig", "tube_mesh", "write_obj"]
 
@@ -67,15 +68,9 @@ class TubeMeshConfig:
     def __post_init__(self) -> None:
         if self.sides < 3:
             raise ValueError(f"sides must be at least 3, got {self.sides}")
-        positive = {
-            "max_chord_error_m": self.max_chord_error_m,
-            "max_radius_error_m": self.max_radius_error_m,
-            "max_ring_spacing_m": self.max_ring_spacing_m,
-            "tile_width_m": self.tile_width_m,
-        }
-        for name, value in positive.items():
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be positive and finite, got {value}")
+        require_positive(
+            self, "max_chord_error_m", "max_radius_error_m", "max_ring_spacing_m", "tile_width_m"
+        )
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@
 episode_start, deterministic)`` with ``deterministic=True`` by default (evaluation must not
 sample), the ``VecNormalize`` statistics saved beside the model applied to the observation, and,
 for a model trained on ``BranchScanFlat-v0`` acting in a Dict-observation env, the observation
-flattened the way the env flattens it. ``agents.baselines.make_agent("ppo:PATH", env)`` uses it.
+flattened the way the env flattens it. ``agents.factory.make_agent("ppo:PATH", env)`` uses it.
 """
 
 from __future__ import annotations
@@ -23,11 +23,20 @@ from branch_gym.env.layout import (
     TRIGGER_ANGLES_DEG,
     VECTOR_KEY,
 )
-from branch_gym.training.paths import normalizer_path
 
 logger = logging.getLogger(__name__)
 
 PPO_SPEC_PREFIX = "ppo:"  # policy spec "ppo:PATH" (eval.py --policies, make_agent)
+# The VecNormalize statistics a model was trained with lie beside it: MODEL_vecnormalize.pkl.
+NORMALIZER_SUFFIX = "_vecnormalize.pkl"
+
+
+def normalizer_path(model_path: str | Path) -> Path:
+    """The ``VecNormalize`` statistics file that belongs to a model file."""
+    model_path = Path(model_path)
+    return model_path.with_name(model_path.stem + NORMALIZER_SUFFIX)
+
+
 _PIXEL_FULL = 255.0  # the flat observation holds the image / 255 (branch_gym.env.observation)
 
 

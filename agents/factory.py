@@ -1,0 +1,78 @@
+"""One factory from a policy spec string to an agent (``eval.py --policies``, the demo, tests).
+
+=========================  =====================================================================
+spec                       agent
+=========================  =====================================================================
+``none``                   :class:`agents.baselines.NoRotationAgent` (paper Table I, 0 / 0)
+``periodic:ANGLE:FREQ``    :class:`agents.baselines.PeriodicAgent`, the paper's controller
+``disagreement[:ANGLE]``   :class:`agents.disagreement.DisagreementAgent`
+``ppo:PATH``               a trained SB3 PPO model (:func:`agents.ppo.load_policy`)
+=========================  =====================================================================
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from agents.baselines import NO_ROTATION_SPEC, NoRotationAgent, PeriodicAgent, parse_periodic_spec
+from agents.disagreement import SPEC_KIND as DISAGREEMENT_KIND
+from agents.disagreement import DisagreementAgent, parse_disagreement_spec
+from agents.ppo import PPO_SPEC_PREFIX, action_type_of, check_ppo_spec, load_model, load_policy
+from agents.protocol import Agent
+
+SPEC_FORMS = "'none', 'periodic:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]' or 'ppo:PATH'"
+
+
+def check_spec(spec: str) -> None:
+    """Validate a spec without building anything (a ``ppo:`` model file must exist).
+
+    Raises:
+        ValueError: an unknown or malformed spec (naming the valid forms), or a ``ppo:`` spec
+            whose model file does not exist.
+    """
+    if spec.startswith(PPO_SPEC_PREFIX):
+        try:
+            check_ppo_spec(spec)
+        except FileNotFoundError as exc:
+            raise ValueError(str(exc)) from exc
+    elif spec.split(":")[0] == DISAGREEMENT_KIND:
+        parse_disagreement_spec(spec)
+    elif spec != NO_ROTATION_SPEC and parse_periodic_spec(spec) is None:
+        raise ValueError(f"unknown policy spec {spec!r}: expected {SPEC_FORMS}")
+
+
+def spec_action_type(spec: str) -> str:
+    """The env action type an agent of ``spec`` acts in: a model's own, else "continuous".
+
+    The baselines decide target angles and encode them for any action type; the continuous env
+    represents every angle exactly, so they act there.
+
+    Raises:
+        FileNotFoundError, agents.ppo.ModelFileError: a ``ppo:`` model that cannot be loaded.
+    """
+    if not spec.startswith(PPO_SPEC_PREFIX):
+        return "continuous"
+    return action_type_of(load_model(check_ppo_spec(spec)).action_space)
+
+
+def make_agent(spec: str, env: Any) -> Agent:
+    """The agent of a policy spec, set up for ``env``'s action space.
+
+    Args:
+        spec: A policy spec (see the module docstring).
+        env: A ``BranchScan`` env, possibly wrapped or vectorised.
+
+    Raises:
+        ValueError: an unknown or malformed spec, or a model that does not fit ``env``.
+        FileNotFoundError: a ``ppo:`` model file that does not exist.
+    """
+    if spec.startswith(PPO_SPEC_PREFIX):
+        return load_policy(check_ppo_spec(spec), env)
+    if spec.split(":")[0] == DISAGREEMENT_KIND:
+        return DisagreementAgent.for_env(env, parse_disagreement_spec(spec))
+    if spec == NO_ROTATION_SPEC:
+        return NoRotationAgent.for_env(env)
+    periodic = parse_periodic_spec(spec)
+    if periodic is None:
+        raise ValueError(f"unknown policy spec {spec!r}: expected {SPEC_FORMS}")
+    return PeriodicAgent.for_env(env, *periodic)

@@ -1,0 +1,107 @@
+"""Scoring a scan against the ground truth: :class:`ScanResult` and :func:`score_scan`.
+
+Simulation only: it reads the tree's ground truth, which no policy may see. The metrics are the
+paper's (:func:`recon.metrics.evaluate`), up to the height the camera reached.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from branch_gym.scan import ScanSession
+from branch_gym.sim.tree.ground_truth import TreeGT
+from recon.metrics import TreeMetrics, evaluate
+from recon.model import TreeModel
+
+
+@dataclass
+class ScanResult:
+    """One scored scan (see :func:`score_scan`).
+
+    Attributes:
+        seed: Tree seed (-1 for a tree given without one).
+        policy: The policy's spec or name.
+        metrics: The paper's metrics of the model against the ground truth.
+        model: The reconstruction.
+        truth: The tree's ground truth.
+        scan_time_s: Simulated scan time (s), rotations included.
+        rotations: Rotation moves made.
+        failure: Failure reason, None for a scan that reached its end height.
+        stop_reason: "end_height", the failure reason, or "running".
+        n_iterations: Modeling iterations run.
+        outcomes: Iterations per outcome ("consistent", ...).
+        stage_ms: Median wall-clock time per modeler stage (ms).
+        wall_time_s: Wall-clock time of the scan so far (s).
+    """
+
+    seed: int
+    policy: str
+    metrics: TreeMetrics
+    model: TreeModel
+    truth: TreeGT
+    scan_time_s: float
+    rotations: int
+    failure: str | None
+    stop_reason: str
+    n_iterations: int
+    outcomes: dict[str, int]
+    stage_ms: dict[str, float]
+    wall_time_s: float
+
+    def to_row(self) -> dict:
+        """A flat, CSV-able row."""
+        row = {
+            "seed": self.seed,
+            "policy": self.policy,
+            "scan_time_s": self.scan_time_s,
+            "rotations": self.rotations,
+            "failure": self.failure or "",
+            "stop_reason": self.stop_reason,
+            "n_iterations": self.n_iterations,
+            "wall_time_s": self.wall_time_s,
+        }
+        row.update({f"outcome_{k}": v for k, v in sorted(self.outcomes.items())})
+        row.update(self.metrics.to_dict())
+        row.update({f"stage_{k}": v for k, v in self.stage_ms.items()})
+        return row
+
+
+def score_scan(session: ScanSession, policy: str = "") -> ScanResult:
+    """Score a session's current model against its tree's ground truth.
+
+    Args:
+        session: A session after ``reset`` (finished or not).
+        policy: Recorded in the result.
+
+    Raises:
+        RuntimeError: the session has not been reset.
+    """
+    if session.tree is None:
+        raise RuntimeError("ScanSession.reset(seed) must be called before scoring the scan")
+    model = session.model
+    metrics = evaluate(model, session.tree, scanned_top_z_m=session.camera_height_m)
+    reports = session.reports
+    outcomes = Counter(r.outcome.value for r in reports)
+    stages = sorted({k for r in reports for k in r.timings_ms})
+    stage_ms = {
+        k: float(np.median([r.timings_ms[k] for r in reports if k in r.timings_ms])) for k in stages
+    }
+    return ScanResult(
+        seed=int(session.tree.seed) if session.tree.seed is not None else -1,
+        policy=policy,
+        metrics=metrics,
+        model=model,
+        truth=session.tree,
+        scan_time_s=session.scan_time_s,
+        rotations=session.rotations,
+        failure=session.failure,
+        stop_reason=session.stop_reason or "running",
+        n_iterations=len(reports),
+        outcomes=dict(outcomes),
+        stage_ms=stage_ms,
+        wall_time_s=time.perf_counter() - session.wall_start_s,
+    )
