@@ -14,11 +14,12 @@ world-vertical axis through the followed branch point, at the set speed, one con
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
 from branch_gym.sim.robot.motion import orbit_camera_twist
+from branch_gym.sim.validation import require_non_negative, require_positive
 from recon.camera import CameraIntrinsics, invert_pose, project_points, transform_points
 from recon.model import BranchModel
 
@@ -52,13 +53,8 @@ class FollowControllerConfig:
     k_level_per_s: float = 1.0
 
     def __post_init__(self) -> None:
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if not (np.isfinite(value) and value >= 0):
-                raise ValueError(f"FollowControllerConfig.{f.name} must be >= 0, got {value}")
-        for name in ("speed_mps", "z_target_m"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"FollowControllerConfig.{name} must be positive")
+        require_non_negative(self, "k_u", "k_z", "k_level_per_s")
+        require_positive(self, "speed_mps", "z_target_m")
 
 
 @dataclass

@@ -27,6 +27,7 @@ from branch_gym.control import (
 from branch_gym.sensing import TRACKERS, Sensor, make_tracker
 from branch_gym.sim.segmentation import make_segmenter
 from branch_gym.sim.tree.ground_truth import TreeGT
+from branch_gym.sim.validation import require_positive
 from branch_gym.sim.world import World, WorldConfig
 from recon.config import ModelerConfig
 from recon.frame import Frame
@@ -73,10 +74,9 @@ class ScanConfig:
     world: WorldConfig = field(default_factory=WorldConfig)
 
     def __post_init__(self) -> None:
-        for name in ("speed_mps", "control_dt_s", "max_scan_time_s", "rotation_tolerance_deg"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"ScanConfig.{name} must be positive, got {value}")
+        require_positive(
+            self, "speed_mps", "control_dt_s", "max_scan_time_s", "rotation_tolerance_deg"
+        )
         if not self.world.scan_start_height_m < self.end_height_m:
             raise ValueError(
                 f"ScanConfig.end_height_m ({self.end_height_m}) must be above the start height "
