@@ -4,7 +4,7 @@ Usage::
 
     python eval.py --policies none periodic:22.5:1.5 periodic:45:1.5 periodic:22.5:2.5 \\
         periodic:45:2.5 --trees 60 --seed 0 --workers 2 --out results/NAME \\
-        [--tracker lk|oracle] [--segmenter gt|noisy:mild|...] [--speed 0.025] \\
+        [--tracker lk|oracle] [--segmenter gt|noisy:mild|learned|...] [--speed 0.025] \\
         [--plot-trees 0 1 2] [--end-height 0.75] [--backend pool|ray] [--address ADDR] \\
         [--record DIR]
 
@@ -83,7 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--tracker", choices=("lk", "oracle"), help="point tracker")
-    parser.add_argument("--segmenter", help="segmenter spec: gt | noisy:mild | ...")
+    parser.add_argument(
+        "--segmenter", help="segmenter spec: gt | noisy:mild|moderate|severe | learned[:PATH]"
+    )
     parser.add_argument("--speed", type=float, metavar="MPS", help="camera speed (m/s)")
     parser.add_argument(
         "--end-height", type=float, metavar="M", help="scan end height (m); lower for quick runs"

@@ -24,8 +24,7 @@ from branch_gym.control import (
     OrbitMove,
     PrimaryBranchController,
 )
-from branch_gym.sensing import TRACKERS, Sensor, make_tracker
-from branch_gym.sim.segmentation import make_segmenter
+from branch_gym.sensing import TRACKERS, Sensor, check_segmenter_spec, make_tracker
 from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.validation import require_positive
 from branch_gym.sim.world import World, WorldConfig
@@ -47,7 +46,8 @@ class ScanConfig:
         control_dt_s: Control period (s); the robot integrates in sub-steps of its own.
         tracker: "lk" (Lucas-Kanade on the rendered images, the default) or "oracle" (exact
             tracks from the renderer's depth, for ablations and fast training).
-        segmenter: "gt" or "noisy:mild" | "noisy:moderate" | "noisy:severe".
+        segmenter: "gt", "noisy:mild" | "noisy:moderate" | "noisy:severe", or "learned" |
+            "learned:PATH" (from RGB; :mod:`branch_gym.sensing`).
         lost_branch_iterations: Non-consistent iterations in a row that end the scan as
             "lost_branch" (our choice: ~2 cm of travel without a usable mask).
         max_scan_time_s: Simulated time limit ("timeout"); our choice: 5x a straight scan.
@@ -84,7 +84,7 @@ class ScanConfig:
             )
         if self.tracker not in TRACKERS:
             raise ValueError(f"ScanConfig.tracker must be one of {TRACKERS}, got {self.tracker!r}")
-        make_segmenter(self.segmenter)  # raises a ValueError naming the valid segmenters
+        check_segmenter_spec(self.segmenter)  # a ValueError naming the valid segmenters
         if not self.render_tracking_frames and self.tracker != "oracle":
             raise ValueError(
                 "ScanConfig.render_tracking_frames=False needs tracker='oracle': an image tracker "

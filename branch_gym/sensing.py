@@ -9,6 +9,11 @@ segmenter spec             mask from
 ``gt``                     the renderer's instance labels (exact)
 ``noisy:PRESET``           the labels with segmentation errors (``mild``, ``moderate``,
                            ``severe``; :mod:`branch_gym.sim.segmentation`)
+``learned``                the RGB image, by the network trained in simulation and shipped in
+                           ``models/segmenter.pt`` (:mod:`recon.segmentation`); what a real
+                           robot runs. Optical flow, if the weights use it, is taken from the
+                           previous rendered frame
+``learned:PATH``           the same with another weights file
 =========================  =====================================================================
 
 =========================  =====================================================================
@@ -21,16 +26,21 @@ tracker name               point tracker (:mod:`recon.tracking`)
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from branch_gym.sim.scene.camera_spec import CameraSpec
-from branch_gym.sim.segmentation import Segmenter, make_segmenter
+from branch_gym.sim.segmentation import SEGMENTER_NAMES, Segmenter
+from branch_gym.sim.segmentation import make_segmenter as make_label_segmenter
 from branch_gym.sim.world import World
 from recon.camera import CameraIntrinsics
 from recon.frame import Frame
+from recon.segmentation import LearnedSegmenter, default_weights_path, load_segmenter
 from recon.tracking import DepthOracleTracker, LucasKanadeTracker, PointTracker
 
 TRACKERS = ("lk", "oracle")
+LEARNED_KIND = "learned"
 # Which child of the scan seed's SeedSequence drives the segmenter's noise (the world and the
 # modeler draw from their own).
 _SEGMENTER_STREAM = 2
@@ -55,6 +65,60 @@ def make_tracker(name: str) -> PointTracker:
     raise ValueError(f"unknown tracker {name!r}: expected one of {TRACKERS}")
 
 
+class RGBSegmenter:
+    """A learned segmenter behind the simulator's segmenter interface: it reads only the RGB.
+
+    It keeps the previous image for the network's optical-flow input: call :meth:`reset` at the
+    start of every scan.
+    """
+
+    def __init__(self, segmenter: LearnedSegmenter) -> None:
+        self.segmenter = segmenter
+        self._previous_rgb: np.ndarray | None = None
+
+    def reset(self) -> None:
+        self._previous_rgb = None
+
+    def segment(self, rgb: np.ndarray, labels: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(H, W) bool mask of ``rgb`` (the labels and the generator are not used)."""
+        mask = self.segmenter.segment(rgb, self._previous_rgb)
+        self._previous_rgb = rgb
+        return mask
+
+
+def make_segmenter(spec: str) -> Segmenter | RGBSegmenter:
+    """The segmenter of a spec (see the module docstring).
+
+    Raises:
+        ValueError: an unknown spec, naming the valid ones.
+        recon.segmentation.SegmenterWeightsError: a missing, corrupt or mismatched weights file
+            (named).
+    """
+    if spec.split(":")[0] == LEARNED_KIND:
+        return RGBSegmenter(load_segmenter(spec))
+    try:
+        return make_label_segmenter(spec)
+    except ValueError:
+        raise ValueError(
+            f"unknown segmenter {spec!r}; valid: {(*SEGMENTER_NAMES, 'learned', 'learned:PATH')}"
+        ) from None
+
+
+def check_segmenter_spec(spec: str) -> None:
+    """Validate a segmenter spec cheaply (a ``learned`` weights file must exist, loaded later).
+
+    Raises:
+        ValueError: an unknown spec, or a ``learned`` spec whose weights file does not exist.
+    """
+    kind, _, path = spec.partition(":")
+    if kind != LEARNED_KIND:
+        make_segmenter(spec)
+        return
+    weights = Path(path).expanduser() if path else default_weights_path()
+    if not weights.is_file():
+        raise ValueError(f"segmenter {spec!r}: weights file {weights} does not exist")
+
+
 class Sensor:
     """The eye-in-hand camera and its segmenter, producing the modeler's frames.
 
@@ -65,14 +129,16 @@ class Sensor:
 
     def __init__(self, world: World, segmenter: str) -> None:
         self.world = world
-        self.segmenter: Segmenter = make_segmenter(segmenter)
+        self.segmenter = make_segmenter(segmenter)
         self.intrinsics = intrinsics_from_spec(world.config.camera)
         self._rng = np.random.default_rng(0)
 
     def reset(self, seed: int) -> None:
-        """Seed the segmenter's noise for the scan of ``seed``."""
+        """Seed the segmenter's noise for the scan of ``seed``; forget the previous image."""
         streams = np.random.SeedSequence(seed).spawn(_SEED_STREAMS)
         self._rng = np.random.default_rng(streams[_SEGMENTER_STREAM])
+        if isinstance(self.segmenter, RGBSegmenter):
+            self.segmenter.reset()
 
     def capture(self, timestamp_s: float) -> Frame:
         """Render the current view and segment it.

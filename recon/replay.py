@@ -40,6 +40,7 @@ from recon.config import ModelerConfig
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
 from recon.io.mesh import TubeMeshConfig, tree_mesh, write_ply
+from recon.io.rosbag import add_bag_arguments, bag_config_from_args
 from recon.io.source import ScanSource, open_source
 from recon.metrics import TreeMetrics, evaluate
 from recon.model import TreeModel
@@ -541,8 +542,6 @@ def _summary(
 # ---------------------------------------------------------------------- CLI
 def main(argv: list[str] | None = None) -> int:
     """The ``python -m recon.replay`` command line."""
-    from recon.io.rosbag import add_bag_arguments, bag_config_from_args
-
     parser = argparse.ArgumentParser(
         prog="python -m recon.replay",
         description="Reconstruct a tree from a recorded scan (scan folder or ROS bag).",

@@ -18,13 +18,13 @@ from replay_fixtures import BAG_START_NS, record_short_scan, write_bag
 
 from recon.camera import CameraIntrinsics, make_pose
 from recon.io import ScanFolder, ScanFormatError, open_source
+from recon.io.convert import main as convert_main
 from recon.io.rosbag import (
     BagConfig,
     BagSource,
     TransformSeries,
     TransformTree,
     camera_from_info,
-    main,
 )
 from recon.replay import replay
 
@@ -83,7 +83,7 @@ def test_frames_without_pose_are_skipped_and_counted(recording, tmp_path):
 def test_import_bag_as_scan_folder(recording, tmp_path, capsys):
     scan, result = recording
     write_bag(scan, tmp_path / "bag")
-    assert main([str(tmp_path / "bag"), "--out", str(tmp_path / "imported")]) == 0
+    assert convert_main([str(tmp_path / "bag"), "--out", str(tmp_path / "imported")]) == 0
     assert f"{len(ScanFolder(scan))} frames, 0 skipped" in capsys.readouterr().out
     imported = ScanFolder(tmp_path / "imported")
     assert len(imported) == len(ScanFolder(scan))

@@ -147,7 +147,8 @@ class BranchScanEnv(gym.Env):
     ``render_mode``          None, "rgb_array" (camera image + mask, 2D curves, projected model),
                              "human" (pybullet GUI; needs a display, else ``RuntimeError``)
     ``tracker``              "lk" (default) or "oracle" (exact tracks from rendered depth, faster)
-    ``segmenter``            "gt" (default) or "noisy:mild" | "noisy:moderate" | "noisy:severe"
+    ``segmenter``            "gt" (default), "noisy:mild" | "noisy:moderate" | "noisy:severe",
+                             "learned" | "learned:PATH" (RGB network, branch_gym.sensing)
     ``tree``                 "paper" (default), "cluttered", "hard" or a ``TreeConfig``
     ``end_height_m``         scan end height (0.75 m); ``speed_mps``: scan speed (0.025 m/s)
     ``scan``                 a full :class:`branch_gym.scan.ScanConfig` (the shortcuts above

@@ -1,13 +1,15 @@
-"""Import any scan source (e.g. a ROS bag) as a scan folder."""
+"""Import any scan source (e.g. a ROS bag) as a scan folder: ``python -m recon.io.convert``."""
 
 from __future__ import annotations
 
+import argparse
 import logging
 from collections import Counter
 from pathlib import Path
 
 from recon.io.distortion import CameraModel
 from recon.io.folder import ScanWriter
+from recon.io.rosbag import BagSource, add_bag_arguments, bag_config_from_args
 from recon.io.source import ScanSource
 
 logger = logging.getLogger(__name__)
@@ -57,3 +59,28 @@ def convert(
     reasons = Counter(s["kind"] for s in skipped)
     logger.info("imported %s: %d frames, %d skipped", source.name, written, len(skipped))
     return {"written": written, "skipped": len(skipped), "skip_reasons": dict(reasons)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m recon.io.convert BAG --out DIR``: import a bag as a scan folder."""
+    parser = argparse.ArgumentParser(
+        prog="python -m recon.io.convert",
+        description="Import a ROS 2 bag as a scan folder (undistorted images, masks, poses).",
+    )
+    parser.add_argument("bag", type=Path)
+    parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument("--image-format", choices=("png", "jpg"), default="png")
+    parser.add_argument("--overwrite", action="store_true")
+    add_bag_arguments(parser)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    source = BagSource(args.bag, bag_config_from_args(args))
+    report = convert(source, args.out, image_format=args.image_format, overwrite=args.overwrite)
+    print(f"wrote {args.out}: {report['written']} frames, {report['skipped']} skipped")
+    for reason, count in report["skip_reasons"].items():
+        print(f"  skipped {count}: {reason}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

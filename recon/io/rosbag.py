@@ -665,30 +665,3 @@ def bag_config_from_args(args: argparse.Namespace) -> BagConfig:
             value = None
         values[f.name] = value
     return BagConfig(**values)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m recon.io.rosbag BAG --out DIR``: import a bag as a scan folder."""
-    from recon.io.convert import convert
-
-    parser = argparse.ArgumentParser(
-        prog="python -m recon.io.rosbag",
-        description="Import a ROS 2 bag as a scan folder (undistorted images, masks, poses).",
-    )
-    parser.add_argument("bag", type=Path)
-    parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument("--image-format", choices=("png", "jpg"), default="png")
-    parser.add_argument("--overwrite", action="store_true")
-    add_bag_arguments(parser)
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    source = BagSource(args.bag, bag_config_from_args(args))
-    report = convert(source, args.out, image_format=args.image_format, overwrite=args.overwrite)
-    print(f"wrote {args.out}: {report['written']} frames, {report['skipped']} skipped")
-    for reason, count in report["skip_reasons"].items():
-        print(f"  skipped {count}: {reason}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

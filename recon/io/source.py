@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Protocol
 
 from recon.camera import CameraIntrinsics
+from recon.io import rosbag
 from recon.io.folder import CAMERA_FILE, LoadedFrame, ScanFolder, ScanFormatConfig, ScanFormatError
 
 
@@ -63,8 +64,6 @@ def open_source(
         raise ScanFormatError(f"{path}: no such scan folder or bag")
     if path.is_dir() and (path / CAMERA_FILE).exists():
         return ScanFolder(path, format_config, skip_bad_frames)
-    from recon.io import rosbag
-
     if rosbag.is_bag(path):
         return rosbag.BagSource(path, bag_config, format_config)
     raise ScanFormatError(
