@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from branch_gym.attribution import MISS_NEVER_SEEN, MISS_SEEN, branch_rows
 from branch_gym.scan import ScanSession
 from branch_gym.sim.tree.ground_truth import TreeGT
 from recon.metrics import TreeMetrics, evaluate
@@ -36,6 +37,8 @@ class ScanResult:
         outcomes: Iterations per outcome ("consistent", ...).
         stage_ms: Median wall-clock time per modeler stage (ms).
         wall_time_s: Wall-clock time of the scan so far (s).
+        branches: One row per ground-truth secondary: geometry, visibility, match,
+            completeness and why it was missed (:func:`branch_gym.attribution.branch_rows`).
     """
 
     seed: int
@@ -51,6 +54,7 @@ class ScanResult:
     outcomes: dict[str, int]
     stage_ms: dict[str, float]
     wall_time_s: float
+    branches: list[dict[str, object]] = field(default_factory=list)
 
     def to_row(self) -> dict:
         """A flat, CSV-able row."""
@@ -66,6 +70,7 @@ class ScanResult:
         }
         row.update({f"outcome_{k}": v for k, v in sorted(self.outcomes.items())})
         row.update(self.metrics.to_dict())
+        row.update(miss_counts(self.branches))
         row.update({f"stage_{k}": v for k, v in self.stage_ms.items()})
         return row
 
@@ -104,4 +109,13 @@ def score_scan(session: ScanSession, policy: str = "") -> ScanResult:
         outcomes=dict(outcomes),
         stage_ms=stage_ms,
         wall_time_s=time.perf_counter() - session.wall_start_s,
+        branches=branch_rows(session.tree, metrics, session.sensor.visibility),
     )
+
+
+def miss_counts(branches: list[dict[str, object]]) -> dict[str, int]:
+    """``n_missed_seen`` and ``n_missed_never_seen`` of a scan's branch rows."""
+    return {
+        "n_missed_seen": sum(row["miss"] == MISS_SEEN for row in branches),
+        "n_missed_never_seen": sum(row["miss"] == MISS_NEVER_SEEN for row in branches),
+    }

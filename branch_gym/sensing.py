@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
+from branch_gym.attribution import BranchVisibility
 from branch_gym.sim.scene.camera_spec import CameraSpec
 from branch_gym.sim.segmentation import SEGMENTER_NAMES, Segmenter
 from branch_gym.sim.segmentation import make_segmenter as make_label_segmenter
@@ -131,14 +132,23 @@ class Sensor:
         self.world = world
         self.segmenter = make_segmenter(segmenter)
         self.intrinsics = intrinsics_from_spec(world.config.camera)
+        # How well the views show each ground-truth secondary (simulation only, for scoring).
+        self.visibility = BranchVisibility()
         self._rng = np.random.default_rng(0)
 
     def reset(self, seed: int) -> None:
-        """Seed the segmenter's noise for the scan of ``seed``; forget the previous image."""
+        """Start the scan of ``seed``, after the world's reset.
+
+        Seeds the segmenter's noise, forgets the previous image and starts counting the new
+        tree's branch visibility.
+        """
         streams = np.random.SeedSequence(seed).spawn(_SEED_STREAMS)
         self._rng = np.random.default_rng(streams[_SEGMENTER_STREAM])
         if isinstance(self.segmenter, RGBSegmenter):
             self.segmenter.reset()
+        tree = self.world.tree
+        n_secondaries = 0 if tree is None else len(tree.secondaries)
+        self.visibility.reset(n_secondaries, self.world.T_world_camera)
 
     def capture(self, timestamp_s: float) -> Frame:
         """Render the current view and segment it.
@@ -153,6 +163,7 @@ class Sensor:
         images = self.world.render()
         mask = self.segmenter.segment(images.rgb, images.labels, self._rng)
         T = self.world.T_world_camera
+        self.visibility.observe(images.labels, T)
         return Frame(images.rgb, mask, T, self.intrinsics, timestamp_s, images.depth_m)
 
     def pose_only(self, timestamp_s: float) -> Frame:

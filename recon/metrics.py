@@ -19,7 +19,8 @@ candidates (largest number of pairs, then least total median distance) gives the
 Percentages follow the authors' code: missed, spurious and duplicates are all divided by the number
 of in-scope ground-truth branches. SB residuals and radius errors use the *overlapping* part of each
 matched pair: the reconstructed samples whose nearest ground-truth sample is neither end of the
-ground-truth branch, i.e. that project inside its arc-length extent.
+ground-truth branch, i.e. that project inside its arc-length extent. SB completeness is the share
+of a matched ground-truth branch's length that lies within a tolerance of its match.
 
 Undefined metrics are NaN (no reconstructed primary point in the band -> PB metrics NaN; no match ->
 SB metrics NaN; no in-scope ground-truth branch -> percentages NaN); :func:`aggregate` skips them.
@@ -82,6 +83,9 @@ class MetricsConfig:
         max_match_angle_deg: Largest angle between base-to-tip vectors of a candidate pair (60 deg).
         max_match_median_distance_m: A candidate's samples lie closer than this (median nearest-
             neighbour distance) to the GT branch (2 cm).
+        completeness_tolerance_m: A ground-truth sample of a matched branch is covered when a
+            reconstructed sample of its match lies within this (our choice: 1 cm, half the
+            matching distance); SB completeness is the covered share of the branch's length.
     """
 
     band_min_z_m: float = 0.325
@@ -92,6 +96,7 @@ class MetricsConfig:
     min_horizontal_length_m: float = 0.025
     max_match_angle_deg: float = 60.0
     max_match_median_distance_m: float = 0.02
+    completeness_tolerance_m: float = 0.01
 
     def __post_init__(self) -> None:
         if not self.band_min_z_m < self.band_max_z_m:
@@ -104,7 +109,11 @@ class MetricsConfig:
                 f"primary_resample_count must be >= 2, got {self.primary_resample_count}"
             )
         require_positive(
-            self, "secondary_resample_step_m", "max_match_median_distance_m", finite=False
+            self,
+            "secondary_resample_step_m",
+            "max_match_median_distance_m",
+            "completeness_tolerance_m",
+            finite=False,
         )
         require_non_negative(self, "gt_base_margin_m", "min_horizontal_length_m", finite=False)
         if not 0.0 < self.max_match_angle_deg <= 180.0:
@@ -129,9 +138,15 @@ class TreeMetrics:
         n_ignored_reconstructed: Reconstructed secondaries too short, or matched (or only a
             candidate) out of scope.
         scanned_top_z_m: Scanned top height used for the GT scope.
+        gt_in_scope: (G,) bool, which GT secondaries are in scope (index as ``truth.secondaries``).
+        match_completeness: (len(matches),) share of each matched GT branch's length that its
+            match covers (``MetricsConfig.completeness_tolerance_m``), in [0, 1].
+        match_residual_m: (len(matches),) mean overlap residual of each matched pair (NaN when
+            no sample overlaps).
         pb_residual_mean_m, sb_residual_mean_m: Means of the residuals (derived).
         pb_radius_rmse_m, sb_radius_rmse_m: RMS of the radius errors (derived).
         missed_pct, spurious_pct, duplicate_pct: Counts in % of ``n_gt`` (derived).
+        sb_completeness_pct: Mean completeness of the matches, % (derived).
     """
 
     pb_residuals_m: np.ndarray
@@ -146,6 +161,9 @@ class TreeMetrics:
     n_duplicates: int
     n_ignored_reconstructed: int
     scanned_top_z_m: float
+    gt_in_scope: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
+    match_completeness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    match_residual_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     pb_residual_mean_m: float = field(init=False)
     pb_radius_rmse_m: float = field(init=False)
     sb_residual_mean_m: float = field(init=False)
@@ -153,6 +171,7 @@ class TreeMetrics:
     missed_pct: float = field(init=False)
     spurious_pct: float = field(init=False)
     duplicate_pct: float = field(init=False)
+    sb_completeness_pct: float = field(init=False)
 
     def __post_init__(self) -> None:
         self.pb_residual_mean_m = _mean(self.pb_residuals_m)
@@ -162,6 +181,7 @@ class TreeMetrics:
         self.missed_pct = _percent(self.n_missed, self.n_gt)
         self.spurious_pct = _percent(self.n_spurious, self.n_gt)
         self.duplicate_pct = _percent(self.n_duplicates, self.n_gt)
+        self.sb_completeness_pct = PERCENT * _mean(np.asarray(self.match_completeness, float))
 
     def to_dict(self) -> dict[str, float | int | str]:
         """Flat JSON-able row (one line of a trials table); NaN stays a float NaN."""
@@ -181,6 +201,7 @@ class TreeMetrics:
             "missed_pct": self.missed_pct,
             "spurious_pct": self.spurious_pct,
             "duplicate_pct": self.duplicate_pct,
+            "sb_completeness_pct": self.sb_completeness_pct,
             "scanned_top_z_m": self.scanned_top_z_m,
             "matches": json.dumps([list(pair) for pair in self.matches]),
         }
@@ -205,6 +226,9 @@ class TreeMetrics:
             "n_duplicates": int(self.n_duplicates),
             "n_ignored_reconstructed": int(self.n_ignored_reconstructed),
             "scanned_top_z_m": _float_to_json(float(self.scanned_top_z_m)),
+            "gt_in_scope": [bool(v) for v in self.gt_in_scope],
+            "match_completeness": [_float_to_json(v) for v in self.match_completeness.tolist()],
+            "match_residual_m": [_float_to_json(v) for v in self.match_residual_m.tolist()],
         }
 
     @classmethod
@@ -223,6 +247,9 @@ class TreeMetrics:
             n_duplicates=int(data["n_duplicates"]),
             n_ignored_reconstructed=int(data["n_ignored_reconstructed"]),
             scanned_top_z_m=float(data["scanned_top_z_m"]),
+            gt_in_scope=np.array(data.get("gt_in_scope", []), bool),
+            match_completeness=_array_from_json(data.get("match_completeness", [])),
+            match_residual_m=_array_from_json(data.get("match_residual_m", [])),
         )
 
 
@@ -293,6 +320,7 @@ def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
     sb = np.concatenate([t.sb_residuals_m for t in trials])
     pb_rmse = np.array([t.pb_radius_rmse_m for t in trials])
     sb_rmse = np.array([t.sb_radius_rmse_m for t in trials])
+    completeness = np.concatenate([np.asarray(t.match_completeness, float) for t in trials])
     totals = {
         name: int(sum(getattr(t, name) for t in trials))
         for name in ("n_gt", "n_matched", "n_missed", "n_spurious", "n_duplicates")
@@ -314,6 +342,7 @@ def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
         "missed_pct": _percent(totals["n_missed"], totals["n_gt"]),
         "spurious_pct": _percent(totals["n_spurious"], totals["n_gt"]),
         "duplicate_pct": _percent(totals["n_duplicates"], totals["n_gt"]),
+        "sb_completeness_pct": PERCENT * _mean(completeness),
     }
 
 
@@ -412,8 +441,13 @@ def _secondary_metrics(
     unassigned = candidate[np.setdiff1d(np.arange(len(kept)), rows)]
     n_duplicates = int(np.sum(np.any(unassigned[:, in_scope], axis=1)))
     n_spurious = int(np.sum(~np.any(unassigned, axis=1)))
-    residuals, radius_errors = _overlap_errors(matches, rec_samples, gt_samples, gt_trees)
+    residuals, radius_errors, completeness, pair_residuals = _pair_errors(
+        matches, rec_samples, gt_samples, gt_trees, config.completeness_tolerance_m
+    )
     return {
+        "gt_in_scope": in_scope,
+        "match_completeness": completeness,
+        "match_residual_m": pair_residuals,
         "sb_residuals_m": residuals,
         "sb_radius_errors_m": radius_errors,
         "matches": matches,
@@ -426,21 +460,36 @@ def _secondary_metrics(
     }
 
 
-def _overlap_errors(
+def _pair_errors(
     matches: list[tuple[int, int]],
     rec_samples: dict[int, Branch],
     gt_samples: list[Branch],
     gt_trees: list[cKDTree],
-) -> tuple[np.ndarray, np.ndarray]:
-    """Residuals and radius errors of the reconstructed samples inside each GT's extent."""
+    tolerance_m: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Overlap errors of all matched pairs, and per pair its completeness and mean residual.
+
+    The overlap of a pair is the reconstructed samples whose nearest GT sample is neither end of
+    the GT branch; a GT sample is covered when a reconstructed sample lies within
+    ``tolerance_m``.
+
+    Returns:
+        (L,) overlap residuals, (L,) radius errors, (P,) completeness in [0, 1], (P,) mean
+        residuals (NaN without overlap).
+    """
     residuals, radius_errors = [np.zeros(0)], [np.zeros(0)]
-    for j, i in matches:
+    completeness, pair_residual = np.zeros(len(matches)), np.full(len(matches), np.nan)
+    for k, (j, i) in enumerate(matches):
         points, radii = rec_samples[i]
+        gt_points, gt_radii = gt_samples[j]
         distance, nearest = gt_trees[j].query(points)
-        inside = (nearest > 0) & (nearest < len(gt_samples[j][0]) - 1)
+        inside = (nearest > 0) & (nearest < len(gt_points) - 1)
         residuals.append(distance[inside])
-        radius_errors.append(radii[inside] - gt_samples[j][1][nearest[inside]])
-    return np.concatenate(residuals), np.concatenate(radius_errors)
+        radius_errors.append(radii[inside] - gt_radii[nearest[inside]])
+        if inside.any():
+            pair_residual[k] = float(np.mean(distance[inside]))
+        completeness[k] = np.mean(cKDTree(points).query(gt_points)[0] <= tolerance_m)
+    return np.concatenate(residuals), np.concatenate(radius_errors), completeness, pair_residual
 
 
 def _angle_rad(a: np.ndarray, b: np.ndarray) -> float:

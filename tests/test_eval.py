@@ -55,6 +55,10 @@ SUMMARY_KEYS = {
     "spurious_pct",
     "missed_pct",
     "duplicate_pct",
+    "missed_seen_pct",
+    "missed_never_seen_pct",
+    "sb_completeness_pct",
+    "misses_by_axis_angle",
     "scan_time_s",
     "rotations",
 }

@@ -290,3 +290,20 @@ def test_aggregate_of_evaluated_trials_and_empty_input() -> None:
     assert result["pb_residual_mean_m"] == pytest.approx(0.002, abs=5e-5)
     with pytest.raises(ValueError, match="at least one trial"):
         aggregate([])
+
+
+def test_completeness_is_the_covered_share_of_the_matched_branch() -> None:
+    gt = _secondary(0.5, 0.0, length_m=0.10)
+    half = BranchModel(gt.points[:11].copy(), gt.radii[:11].copy())  # the first 5 cm
+    metrics = evaluate(TreeModel(None, [half]), GTTree(_primary(), [gt]))
+    assert metrics.matches == [(0, 0)]
+    # 5 cm reconstructed + the 1 cm tolerance beyond its tip: 60 % of the 10 cm branch.
+    assert metrics.match_completeness[0] == pytest.approx(0.6, abs=0.02)
+    assert metrics.sb_completeness_pct == pytest.approx(60.0, abs=2.0)
+    assert metrics.match_residual_m[0] == pytest.approx(0.0, abs=1e-9)
+    assert metrics.gt_in_scope.tolist() == [True]
+    full = evaluate(TreeModel(None, [BranchModel(gt.points, gt.radii)]), GTTree(_primary(), [gt]))
+    assert full.match_completeness[0] == pytest.approx(1.0)
+    again = TreeMetrics.from_json_dict(json.loads(json.dumps(metrics.to_json_dict())))
+    np.testing.assert_array_equal(again.match_completeness, metrics.match_completeness)
+    assert again.sb_completeness_pct == metrics.sb_completeness_pct

@@ -1,6 +1,7 @@
 """The whole evaluation: check the output folder, run what is missing, report, draw.
 
-Everything written at the end (``summary.json``, ``table.md``, ``trials.csv``, figures) is
+Everything written at the end (``summary.json``, ``table.md``, ``trials.csv``, ``branches.csv``,
+figures) is
 rebuilt from the saved trial files, so a resumed run and a fresh one give the same outputs.
 """
 
@@ -83,6 +84,6 @@ def run_evaluation(
     computed = run_trials(config, out, todo, on_done)
     records = load_records(config, out)
     summary = write_report(out, config, records)
-    files = [out / name for name in ("summary.json", "table.md", "trials.csv")]
+    files = [out / name for name in ("summary.json", "table.md", "trials.csv", "branches.csv")]
     files += write_figures(out, summary, records, plot_seeds)
     return EvalOutcome(summary, records, computed, files)

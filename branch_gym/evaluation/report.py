@@ -1,4 +1,5 @@
-"""Aggregate saved trials into the paper's table: ``summary.json``, ``table.md``, ``trials.csv``.
+"""Aggregate saved trials into the paper's table: ``summary.json``, ``table.md``, ``trials.csv``,
+and one row per ground-truth branch, ``branches.csv`` (why each miss happened).
 
 Per policy (recon.metrics.aggregate): the PB residual is pooled over the points of all trials (as
 the paper); PB and SB radius RMSEs are per trial, then mean (std) over the trials that have one;
@@ -12,6 +13,7 @@ JSON and ``n/a`` in tables.
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 from collections import Counter
@@ -20,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from branch_gym.attribution import MISS_NEVER_SEEN, MISS_SEEN
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.paper import paper_column
 from branch_gym.evaluation.trials import TrialRecord
@@ -37,11 +40,35 @@ TABLE_ROWS: tuple[tuple[str, str], ...] = (
     ("SB radius (mm)", "sb_radius_mm"),
     ("Spurious %", "spurious_pct"),
     ("Missed %", "missed_pct"),
+    ("Missed, seen %", "missed_seen_pct"),
+    ("Missed, never seen %", "missed_never_seen_pct"),
     ("Duplicates %", "duplicate_pct"),
+    ("SB completeness %", "sb_completeness_pct"),
     ("Scan time (s)", "scan_time_s"),
     ("Rotations", "rotations"),
     ("Trials", "trials"),
     ("Failures", "failures"),
+)
+
+
+# Misses broken down by the branch's angle to the home optical axis (deg; 0 = pointing toward or
+# away from the camera): the bins of the issue's finding that misses lie within 45 deg of it.
+AXIS_ANGLE_BINS_DEG = (0.0, 15.0, 30.0, 45.0, 90.0)
+BRANCH_COLUMNS = (
+    "seed",
+    "policy",
+    "branch",
+    "axis_angle_deg",
+    "elevation_deg",
+    "length_m",
+    "base_height_m",
+    "peak_visible_px",
+    "peak_view_angle_deg",
+    "in_scope",
+    "matched",
+    "completeness",
+    "residual_mm",
+    "miss",
 )
 
 
@@ -72,9 +99,45 @@ def summarise_policy(records: Sequence[TrialRecord]) -> dict:
         "spurious_pct": _finite_or_none(stats["spurious_pct"]),
         "missed_pct": _finite_or_none(stats["missed_pct"]),
         "duplicate_pct": _finite_or_none(stats["duplicate_pct"]),
+        **_miss_kinds(records, stats["n_gt"]),
+        "sb_completeness_pct": _finite_or_none(stats["sb_completeness_pct"]),
+        "misses_by_axis_angle": _misses_by_axis_angle(records),
         "scan_time_s": _mean_std(float(np.mean(scan_times)), float(np.std(scan_times))),
         "rotations": _mean_std(float(np.mean(rotations)), float(np.std(rotations))),
     }
+
+
+def _miss_kinds(records: Sequence[TrialRecord], n_gt: int) -> dict[str, float | None]:
+    """Missed branches a frame showed well ("seen") and ones none did, in % of in-scope GT.
+
+    None when a trial has no branch rows (saved before the attribution existed).
+    """
+    if n_gt == 0 or any(r.metrics.n_gt and not r.branches for r in records):
+        return {"missed_seen_pct": None, "missed_never_seen_pct": None}
+    rows = [row for r in records for row in r.branches]
+    return {
+        f"missed_{kind}_pct": 100.0 * sum(row["miss"] == kind for row in rows) / n_gt
+        for kind in (MISS_SEEN, MISS_NEVER_SEEN)
+    }
+
+
+def _misses_by_axis_angle(records: Sequence[TrialRecord]) -> dict[str, dict[str, int]]:
+    """Per bin of ``AXIS_ANGLE_BINS_DEG``: in-scope GT branches, missed, and missed but seen."""
+    bins: dict[str, dict[str, int]] = {}
+    edges = AXIS_ANGLE_BINS_DEG
+    for low, high in itertools.pairwise(edges):
+        rows = [
+            row
+            for r in records
+            for row in r.branches
+            if row["in_scope"] and low <= float(row["axis_angle_deg"]) < high + (high == edges[-1])
+        ]
+        bins[f"{low:g}-{high:g}"] = {
+            "gt": len(rows),
+            "missed": sum(bool(row["miss"]) for row in rows),
+            "missed_seen": sum(row["miss"] == MISS_SEEN for row in rows),
+        }
+    return bins
 
 
 def build_summary(config: EvalConfig, records: Sequence[TrialRecord]) -> dict:
@@ -141,7 +204,18 @@ def write_report(out: Path, config: EvalConfig, records: Sequence[TrialRecord]) 
     (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False) + "\n")
     (out / "table.md").write_text(_table_document(summary, records))
     write_trials_csv(out / "trials.csv", records)
+    write_branches_csv(out / "branches.csv", records)
     return summary
+
+
+def write_branches_csv(path: Path, records: Sequence[TrialRecord]) -> None:
+    """One row per ground-truth secondary per trial (``BRANCH_COLUMNS``), in the records' order."""
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(BRANCH_COLUMNS), restval="")
+        writer.writeheader()
+        for record in records:
+            for row in record.branches:
+                writer.writerow({"seed": record.seed, "policy": record.policy, **row})
 
 
 def write_trials_csv(path: Path, records: Sequence[TrialRecord]) -> None:
@@ -165,8 +239,26 @@ def _table_document(summary: dict, records: Sequence[TrialRecord]) -> str:
         "(summary.json). PB residual pooled over points; radius RMSEs per trial; percentages of "
         "in-scope ground-truth secondaries, totals over trials.\n\n"
         f"{format_table(summary)}\n\n"
+        "Misses by the branch's angle to the home optical axis (0 deg: pointing toward or away "
+        "from the camera), missed / in-scope (of which seen):\n\n"
+        f"{format_angle_breakdown(summary)}\n\n"
         f"Failure reasons: {failure_reasons(records, config['policies'])}\n"
     )
+
+
+def format_angle_breakdown(summary: dict) -> str:
+    """Markdown: one row per axis-angle bin, one column per policy, "missed / gt (seen)"."""
+    policies = summary["policies"]
+    bins = list(next(iter(policies.values()))["misses_by_axis_angle"])
+    header = ["axis angle (deg)", *(_escape(p) for p in policies)]
+    rows = []
+    for name in bins:
+        row = [name]
+        for entry in policies.values():
+            cell = entry["misses_by_axis_angle"][name]
+            row.append(f"{cell['missed']} / {cell['gt']} ({cell['missed_seen']})")
+        rows.append(row)
+    return _markdown([header, *rows])
 
 
 def failure_reasons(records: Sequence[TrialRecord], policies: Sequence[str]) -> str:

@@ -16,7 +16,7 @@ import hashlib
 import json
 import math
 import re
-from dataclasses import asdict, dataclass, is_dataclass
+from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +47,8 @@ class TrialRecord:
         scan_time_s: Simulated scan duration, rotations included.
         rotations: Rotation moves performed.
         failure: The failure reason, or None when the scan reached its end height.
+        branches: One row per ground-truth secondary (``ScanResult.branches``), non-finite
+            floats as strings; empty in trial files written before the attribution existed.
     """
 
     policy: str
@@ -59,6 +61,7 @@ class TrialRecord:
     scan_time_s: float
     rotations: int
     failure: str | None
+    branches: list[dict[str, Scalar]] = field(default_factory=list)
 
     @classmethod
     def from_scan(cls, result: Any, policy: str, config_hash: str) -> TrialRecord:
@@ -83,6 +86,7 @@ class TrialRecord:
             scan_time_s=float(result.scan_time_s),
             rotations=int(result.rotations),
             failure=None if result.failure is None else str(result.failure),
+            branches=[{k: json_scalar(v) for k, v in row.items()} for row in result.branches],
         )
 
     def to_json_dict(self) -> dict:
@@ -99,6 +103,7 @@ class TrialRecord:
             "metrics": self.metrics.to_json_dict(),
             "model": self.model.to_dict(),
             "truth": self.truth.to_dict(),
+            "branches": self.branches,
         }
 
     @classmethod
@@ -117,6 +122,7 @@ class TrialRecord:
             scan_time_s=float(data["scan_time_s"]),
             rotations=int(data["rotations"]),
             failure=data["failure"],
+            branches=list(data.get("branches", [])),
         )
 
 

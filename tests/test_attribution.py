@@ -1,0 +1,67 @@
+"""Miss attribution (branch_gym/attribution.py): a hidden branch is "never seen", a visible one
+that the model lacks is "seen"."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from branch_gym.attribution import MISS_NEVER_SEEN, MISS_SEEN, AttributionConfig, branch_rows
+from branch_gym.scan import ScanConfig, ScanSession
+from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
+from recon.metrics import evaluate
+from recon.model import TreeModel
+
+BASE_Z_M = 0.34  # in the scored band (above 0.325 m), in view soon after the start (0.275 m)
+LENGTH_M = 0.08
+SCAN_TOP_M = 0.42
+
+
+def _straight(base: np.ndarray, direction: np.ndarray, radius_m: float) -> BranchGT:
+    steps = np.linspace(0.0, LENGTH_M, 41)[:, None]
+    return BranchGT(base + steps * direction / np.linalg.norm(direction), np.full(41, radius_m))
+
+
+def _tree_with_hidden_and_visible_branch(session: ScanSession) -> TreeGT:
+    tree = session.world.reset(0)
+    primary = tree.primary
+    k = int(np.argmin(np.abs(primary.points[:, 2] - BASE_Z_M)))
+    base, radius = primary.points[k], 0.8 * float(primary.radii[k])
+    hidden = _straight(base, np.array([0.0, 1.0, 0.0]), radius)  # straight away: behind it
+    visible = _straight(base, np.array([1.0, 0.0, 0.2]), radius)  # across the view
+    return TreeGT(primary, [hidden, visible], [], tree.seed)
+
+
+@pytest.fixture(scope="module")
+def scanned() -> tuple[TreeGT, ScanSession]:
+    session = ScanSession(ScanConfig(end_height_m=SCAN_TOP_M, tracker="oracle"))
+    tree = session.reset(0, _tree_with_hidden_and_visible_branch(session))
+    while not session.done:
+        session.step(0.0)
+    yield tree, session
+    session.close()
+
+
+def test_hidden_branch_is_never_seen_and_a_dropped_visible_one_is_seen(scanned) -> None:
+    tree, session = scanned
+    visibility = session.sensor.visibility
+    threshold = AttributionConfig().seen_min_pixels
+    assert visibility.frames > 10
+    assert visibility.peak_pixels[0] < threshold <= visibility.peak_pixels[1]
+    nothing = TreeModel(None, [])  # a model that lacks both branches
+    rows = branch_rows(tree, evaluate(nothing, tree, scanned_top_z_m=SCAN_TOP_M), visibility)
+    assert [row["miss"] for row in rows] == [MISS_NEVER_SEEN, MISS_SEEN]
+    assert rows[0]["axis_angle_deg"] == pytest.approx(0.0, abs=1e-6)
+    assert rows[1]["axis_angle_deg"] == pytest.approx(90.0, abs=1e-6)
+    assert rows[1]["peak_view_angle_deg"] == pytest.approx(0.0, abs=1.0)  # no rotation
+
+
+def test_a_matched_branch_is_no_miss_and_carries_its_completeness(scanned) -> None:
+    tree, session = scanned
+    model = TreeModel(None, [tree.secondaries[1]])
+    rows = branch_rows(
+        tree, evaluate(model, tree, scanned_top_z_m=SCAN_TOP_M), session.sensor.visibility
+    )
+    assert rows[1]["matched"] and rows[1]["miss"] == ""
+    assert rows[1]["completeness"] == pytest.approx(1.0)
+    assert rows[0]["miss"] == MISS_NEVER_SEEN
