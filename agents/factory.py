@@ -7,6 +7,8 @@ spec                       agent
 ``periodic:ANGLE:FREQ``    :class:`agents.baselines.PeriodicAgent`, the paper's controller
 ``disagreement[:ANGLE]``   :class:`agents.disagreement.DisagreementAgent`
 ``ppo:PATH``               a trained SB3 PPO model (:func:`agents.ppo.load_policy`)
+``privileged``             :class:`agents.privileged.PrivilegedAgent`: reads the ground truth
+                           (simulation only), the upper bound of a policy
 =========================  =====================================================================
 """
 
@@ -18,9 +20,13 @@ from agents.baselines import NO_ROTATION_SPEC, NoRotationAgent, PeriodicAgent, p
 from agents.disagreement import SPEC_KIND as DISAGREEMENT_KIND
 from agents.disagreement import DisagreementAgent, parse_disagreement_spec
 from agents.ppo import PPO_SPEC_PREFIX, action_type_of, check_ppo_spec, load_model, load_policy
+from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
+from agents.privileged import PrivilegedAgent
 from agents.protocol import Agent
 
-SPEC_FORMS = "'none', 'periodic:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]' or 'ppo:PATH'"
+SPEC_FORMS = (
+    "'none', 'periodic:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]', 'privileged' or 'ppo:PATH'"
+)
 
 
 def check_spec(spec: str) -> None:
@@ -37,7 +43,7 @@ def check_spec(spec: str) -> None:
             raise ValueError(str(exc)) from exc
     elif spec.split(":")[0] == DISAGREEMENT_KIND:
         parse_disagreement_spec(spec)
-    elif spec != NO_ROTATION_SPEC and parse_periodic_spec(spec) is None:
+    elif spec not in (NO_ROTATION_SPEC, PRIVILEGED_KIND) and parse_periodic_spec(spec) is None:
         raise ValueError(f"unknown policy spec {spec!r}: expected {SPEC_FORMS}")
 
 
@@ -72,6 +78,8 @@ def make_agent(spec: str, env: Any) -> Agent:
         return DisagreementAgent.for_env(env, parse_disagreement_spec(spec))
     if spec == NO_ROTATION_SPEC:
         return NoRotationAgent.for_env(env)
+    if spec == PRIVILEGED_KIND:
+        return PrivilegedAgent.for_env(env)
     periodic = parse_periodic_spec(spec)
     if periodic is None:
         raise ValueError(f"unknown policy spec {spec!r}: expected {SPEC_FORMS}")

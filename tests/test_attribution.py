@@ -6,7 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from agents.factory import make_agent
 from branch_gym.attribution import MISS_NEVER_SEEN, MISS_SEEN, AttributionConfig, branch_rows
+from branch_gym.env.scan_env import BranchScanEnv
 from branch_gym.scan import ScanConfig, ScanSession
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 from recon.metrics import evaluate
@@ -65,3 +67,26 @@ def test_a_matched_branch_is_no_miss_and_carries_its_completeness(scanned) -> No
     assert rows[1]["matched"] and rows[1]["miss"] == ""
     assert rows[1]["completeness"] == pytest.approx(1.0)
     assert rows[0]["miss"] == MISS_NEVER_SEEN
+
+
+def test_the_privileged_policy_rotates_to_show_a_branch_hidden_behind_the_primary() -> None:
+    env = BranchScanEnv(scan=ScanConfig(end_height_m=SCAN_TOP_M, tracker="oracle"))
+    try:
+        tree = _tree_with_hidden_and_visible_branch(env.session)
+        results = {}
+        for spec in ("none", "privileged"):
+            agent = make_agent(spec, env)
+            observation, _ = env.reset(seed=0, options={"tree": tree})
+            done, start = False, True
+            while not done:
+                action, _ = agent.predict(observation, episode_start=start)
+                observation, _, terminated, truncated, _ = env.step(action)
+                done, start = terminated or truncated, False
+            peak = env.session.sensor.visibility.peak_pixels.copy()
+            results[spec] = (peak, env.session.rotations)
+    finally:
+        env.close()
+    threshold = AttributionConfig().seen_min_pixels
+    (none_peak, none_rotations), (privileged_peak, privileged_rotations) = results.values()
+    assert none_rotations == 0 and none_peak[0] < threshold
+    assert privileged_rotations >= 1 and privileged_peak[0] >= threshold  # now seen

@@ -59,6 +59,8 @@ SUMMARY_KEYS = {
     "missed_never_seen_pct",
     "sb_completeness_pct",
     "misses_by_axis_angle",
+    "missed_pct_ci",
+    "scan_time_s_ci",
     "scan_time_s",
     "rotations",
 }

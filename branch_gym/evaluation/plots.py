@@ -15,6 +15,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D  # importing it registers the "3d" projection
 
+from agents.ppo import PPO_SPEC_PREFIX
+from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
 from branch_gym.evaluation.trials import TrialRecord
 from recon.metrics import MetricsConfig
 
@@ -26,6 +28,7 @@ ABOVE_SCAN_M = 0.10
 # View from the camera's side (it looks along +y), a little from above and to the left.
 VIEW_ELEVATION_DEG = 15.0
 VIEW_AZIMUTH_DEG = -70.0
+PRIVILEGED_MARKER = "*"
 
 
 def write_figures(
@@ -51,24 +54,47 @@ def write_figures(
 
 
 def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
-    """Missed % against mean scan time, one labelled point per policy (std as error bars)."""
-    figure = Figure(figsize=(6.0, 4.5))
+    """The Pareto plot: missed % against mean scan time, one point per policy.
+
+    Error bars are the 95 % bootstrap intervals over trees (``missed_pct_ci``,
+    ``scan_time_s_ci``; the std of the scan time where an interval is missing). Learned
+    policies (``ppo:``) are joined into their front; the privileged bound is a star.
+    """
+    figure = Figure(figsize=(7.0, 5.0))
     FigureCanvasAgg(figure)
     axes = figure.add_subplot()
+    front = []
     for policy, entry in summary["policies"].items():
         time_s, missed = entry["scan_time_s"], entry["missed_pct"]
         if time_s["mean"] is None or missed is None:
             continue
-        axes.errorbar(time_s["mean"], missed, xerr=time_s["std"] or 0.0, fmt="o", capsize=3)
-        axes.annotate(policy, (time_s["mean"], missed), xytext=(5, 5), textcoords="offset points")
+        x, y = time_s["mean"], missed
+        xerr = _error_bar(x, entry.get("scan_time_s_ci"), time_s["std"] or 0.0)
+        yerr = _error_bar(y, entry.get("missed_pct_ci"), 0.0)
+        marker = PRIVILEGED_MARKER if policy == PRIVILEGED_KIND else "o"
+        axes.errorbar(x, y, xerr=xerr, yerr=yerr, fmt=marker, capsize=3, markersize=7)
+        axes.annotate(policy, (x, y), xytext=(5, 5), textcoords="offset points", fontsize=8)
+        if policy.startswith(PPO_SPEC_PREFIX):
+            front.append((x, y))
+    if len(front) > 1:
+        xs, ys = zip(*sorted(front), strict=True)
+        axes.plot(xs, ys, "--", color="0.4", linewidth=1, label="learned front")
+        axes.legend(loc="upper right", fontsize=8)
     axes.set_ylim(bottom=0.0)
     axes.margins(x=0.3)  # room for the labels
-    axes.set_xlabel("scan time (s), mean (std)")
-    axes.set_ylabel("missed secondary branches (%)")
+    axes.set_xlabel("scan time (s), mean [95 % CI over trees]")
+    axes.set_ylabel("missed secondary branches (%) [95 % CI]")
     axes.set_title("Missed branches against scan time")
     axes.grid(alpha=0.3)
     figure.tight_layout()
     figure.savefig(path, dpi=120)
+
+
+def _error_bar(value: float, interval: list[float] | None, fallback: float) -> list[list[float]]:
+    """Asymmetric error bar [[below], [above]] of an interval, or the symmetric fallback."""
+    if interval is None:
+        return [[fallback], [fallback]]
+    return [[max(value - interval[0], 0.0)], [max(interval[1] - value, 0.0)]]
 
 
 def plot_tree(records: Sequence[TrialRecord], path: Path) -> None:

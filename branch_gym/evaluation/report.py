@@ -25,6 +25,7 @@ import numpy as np
 from branch_gym.attribution import MISS_NEVER_SEEN, MISS_SEEN
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.paper import paper_column
+from branch_gym.evaluation.statistics import bootstrap_ci, paired_comparison
 from branch_gym.evaluation.trials import TrialRecord
 from recon.metrics import aggregate
 
@@ -141,15 +142,25 @@ def _misses_by_axis_angle(records: Sequence[TrialRecord]) -> dict[str, dict[str,
 
 
 def build_summary(config: EvalConfig, records: Sequence[TrialRecord]) -> dict:
-    """``summary.json``: one entry per policy, keyed by its spec as given, and the run config."""
+    """``summary.json``: one entry per policy, keyed by its spec as given, the paired
+    comparisons of every two policies, and the run config.
+
+    The bootstrap draws from a generator seeded by the first tree seed (``config.seed``).
+    """
     by_policy = {policy: [r for r in records if r.policy == policy] for policy in config.policies}
     empty = [policy for policy, rs in by_policy.items() if not rs]
     if empty:
         raise ValueError(f"no trials for policies {empty}")
-    return {
-        "policies": {policy: summarise_policy(rs) for policy, rs in by_policy.items()},
-        "config": config.to_json_dict(),
-    }
+    rng = np.random.default_rng(config.seed)
+    policies = {}
+    for policy, rs in by_policy.items():
+        policies[policy] = {**summarise_policy(rs), **bootstrap_ci(rs, rng)}
+    paired = [
+        {"policy": a, "against": b, **paired_comparison(by_policy[a], by_policy[b], rng)}
+        for i, a in enumerate(config.policies)
+        for b in config.policies[:i]
+    ]
+    return {"policies": policies, "paired": paired, "config": config.to_json_dict()}
 
 
 def format_cell(value: object) -> str:
@@ -242,8 +253,31 @@ def _table_document(summary: dict, records: Sequence[TrialRecord]) -> str:
         "Misses by the branch's angle to the home optical axis (0 deg: pointing toward or away "
         "from the camera), missed / in-scope (of which seen):\n\n"
         f"{format_angle_breakdown(summary)}\n\n"
+        "Missed % with 95 % bootstrap intervals over trees, and paired comparisons on the same "
+        "trees (difference in missed %, points, with its paired-bootstrap interval; per-tree "
+        "wins / losses / ties and the two-sided sign test):\n\n"
+        f"{format_paired(summary)}\n\n"
         f"Failure reasons: {failure_reasons(records, config['policies'])}\n"
     )
+
+
+def format_paired(summary: dict) -> str:
+    """Markdown: each policy's missed % [95 % CI], then one line per paired comparison."""
+    lines = []
+    for policy, entry in summary["policies"].items():
+        ci = entry.get("missed_pct_ci")
+        interval = MISSING if ci is None else f"[{ci[0]:.1f}, {ci[1]:.1f}]"
+        lines.append(f"- {policy}: missed {format_cell(entry['missed_pct'])} % {interval}")
+    for row in summary.get("paired", []):
+        ci = row["missed_pct_diff_ci"]
+        interval = MISSING if ci is None else f"[{ci[0]:+.1f}, {ci[1]:+.1f}]"
+        diff = MISSING if row["missed_pct_diff"] is None else f"{row['missed_pct_diff']:+.1f}"
+        lines.append(
+            f"- {row['policy']} vs {row['against']}: {diff} pts {interval}, "
+            f"{row['scan_time_s_diff']:+.1f} s; trees {row['wins']}/{row['losses']}/{row['ties']}"
+            f", sign test p = {row['sign_test_p']:.3f}"
+        )
+    return "\n".join(lines)
 
 
 def format_angle_breakdown(summary: dict) -> str:

@@ -1,0 +1,144 @@
+"""A privileged rotation policy: it reads the ground truth (simulation only), an upper bound.
+
+:class:`PrivilegedAgent` knows where every side branch is. At each modeling iteration it looks at
+the ground-truth secondaries whose base lies in the camera's view band and that no frame has shown
+well yet (:class:`branch_gym.attribution.BranchVisibility`). If the current view shows each of
+them at a good angle (the branch's horizontal direction at least ``good_view_deg`` from the
+optical axis: not hidden behind the primary, not pointing at the lens) it holds; otherwise it
+rotates to the candidate angle that shows the worst-placed one best, preferring small moves. With
+nothing pending it holds. Its points on the missed-vs-scan-time plot bound what a policy that
+sees only the pipeline's observation can reach.
+
+Spec (``agents.factory``): ``privileged``. It needs a single, unwrapped-able env (not vectorised).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from agents.baselines import BaselineAgent
+from branch_gym.attribution import AttributionConfig
+from branch_gym.env.layout import DISCRETE_ANGLES_DEG
+from branch_gym.sim.validation import require_positive
+
+SPEC_KIND = "privileged"
+
+
+@dataclass(frozen=True)
+class PrivilegedConfig:
+    """When and where the privileged policy rotates.
+
+    Attributes:
+        candidate_angles_deg: Angles it may rotate to (the discrete env's, the paper's +-22.5
+            and +-45 deg and 0).
+        good_view_deg: A branch whose horizontal direction is at least this far from the
+            optical axis is well in view (our choice: 45 deg; the misses of the no-rotation
+            scan all lie within 45 deg of the home optical axis, issue 13).
+        view_band_fov: Branches whose base lies within this many vertical FoVs of the camera
+            height are the ones in view (our choice: 0.5, the image's half height).
+        seen: When a frame has shown a branch well enough (the attribution's threshold).
+    """
+
+    candidate_angles_deg: tuple[float, ...] = DISCRETE_ANGLES_DEG
+    good_view_deg: float = 45.0
+    view_band_fov: float = 0.5
+    seen: AttributionConfig = field(default_factory=AttributionConfig)
+
+    def __post_init__(self) -> None:
+        if not self.candidate_angles_deg or 0.0 not in self.candidate_angles_deg:
+            raise ValueError("PrivilegedConfig.candidate_angles_deg must hold 0")
+        if not 0.0 < self.good_view_deg <= 90.0:
+            raise ValueError(
+                f"PrivilegedConfig.good_view_deg must be in (0, 90], got {self.good_view_deg}"
+            )
+        require_positive(self, "view_band_fov")
+
+
+class PrivilegedAgent(BaselineAgent):
+    """Rotate to show ground-truth branches that no frame has shown well (module docstring).
+
+    Args:
+        session: The env's :class:`branch_gym.scan.ScanSession` (``env.unwrapped.session``).
+        config: When and where to rotate.
+        theta_max_deg, action_angles_deg, trigger_angles_deg, hold_tolerance_deg: The env's
+            action settings (see :meth:`BaselineAgent.for_env`).
+    """
+
+    def __init__(
+        self, session: Any, config: PrivilegedConfig | None = None, **action_settings: Any
+    ) -> None:
+        super().__init__(**action_settings)
+        self.session = session
+        self.config = config or PrivilegedConfig()
+        too_far = [a for a in self.config.candidate_angles_deg if abs(a) > self.theta_max_deg]
+        if too_far:
+            raise ValueError(
+                f"candidate angles {too_far} exceed theta_max_deg {self.theta_max_deg}"
+            )
+
+    @classmethod
+    def for_env(cls, env: Any, config: PrivilegedConfig | None = None) -> PrivilegedAgent:
+        """The agent for a single (possibly wrapped) ``BranchScan`` env."""
+        unwrapped = getattr(env, "unwrapped", env)
+        session = getattr(unwrapped, "session", None)
+        if session is None:
+            raise ValueError(f"the privileged policy needs a single BranchScan env, got {env!r}")
+        base = BaselineAgent.for_env(env)
+        return cls(
+            session,
+            config,
+            theta_max_deg=base.theta_max_deg,
+            action_angles_deg=base.action_angles_deg,
+            trigger_angles_deg=base.trigger_angles_deg,
+            hold_tolerance_deg=base.hold_tolerance_deg,
+        )
+
+    def target_angle_deg(self) -> float:
+        """The target angle for the session's current state (deg)."""
+        session, config = self.session, self.config
+        current = float(session.angle_deg)
+        pending = self._pending_directions_rad()
+        if len(pending) == 0 or _worst_view_deg(pending, current) >= config.good_view_deg:
+            return current
+        scores = [
+            (_worst_view_deg(pending, angle), -abs(angle - current), angle)
+            for angle in config.candidate_angles_deg
+        ]
+        best = max(scores)
+        return current if best[0] <= _worst_view_deg(pending, current) else float(best[2])
+
+    def _pending_directions_rad(self) -> np.ndarray:
+        """Headings (rad, 0 along +y) of the in-view branches no frame has shown well yet."""
+        session, config = self.session, self.config
+        tree, visibility = session.tree, session.sensor.visibility
+        if tree is None:
+            return np.zeros(0)
+        half_band_m = config.view_band_fov * session.vertical_fov_m
+        headings = []
+        for j, branch in enumerate(tree.secondaries):
+            points = np.asarray(branch.points, float)
+            if abs(points[0, 2] - session.camera_height_m) > half_band_m:
+                continue
+            if visibility.peak_pixels[j] >= config.seen.seen_min_pixels:
+                continue
+            direction = points[-1] - points[0]
+            headings.append(math.atan2(-direction[0], direction[1]))
+        return np.array(headings)
+
+    def _angles_deg(
+        self, vectors: np.ndarray, starts: np.ndarray, state: Any
+    ) -> tuple[np.ndarray, Any]:
+        if len(vectors) != 1:
+            raise ValueError("the privileged policy acts in a single env, not a batch")
+        return np.array([self.target_angle_deg()]), state
+
+
+def _worst_view_deg(headings_rad: np.ndarray, rotation_deg: float) -> float:
+    """Smallest angle (deg, in [0, 90]) between any branch line and the view axis at a rotation."""
+    difference = np.abs(np.remainder(headings_rad - math.radians(rotation_deg), math.pi))
+    folded = np.minimum(difference, math.pi - difference)
+    return float(np.degrees(folded.min()))
