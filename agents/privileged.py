@@ -1,13 +1,13 @@
 """A privileged rotation policy: it reads the ground truth (simulation only), an upper bound.
 
-:class:`PrivilegedAgent` knows where every side branch is. At each modeling iteration it looks at
-the ground-truth secondaries whose base lies in the camera's view band and that no frame has shown
-well yet (:class:`branch_gym.attribution.BranchVisibility`). If the current view shows each of
-them at a good angle (the branch's horizontal direction at least ``good_view_deg`` from the
-optical axis: not hidden behind the primary, not pointing at the lens) it holds; otherwise it
-rotates to the candidate angle that shows the worst-placed one best, preferring small moves. With
-nothing pending it holds. Its points on the missed-vs-scan-time plot bound what a policy that
-sees only the pipeline's observation can reach.
+:class:`PrivilegedAgent` knows where every side branch is and what the model has found. At each
+modeling iteration it looks at the ground-truth secondaries whose base lies in the camera's view
+band and that the current model does not match yet (:func:`recon.metrics.evaluate`). If the
+current view shows each of them at a good angle (the branch's horizontal direction at least
+``good_view_deg`` from the optical axis: not hidden behind the primary, not pointing at the lens)
+it holds; otherwise it rotates to the candidate angle that shows the worst-placed one best,
+preferring small moves. With nothing pending it holds. Its points on the missed-vs-scan-time
+plot bound what a policy that sees only the pipeline's observation can reach.
 
 Spec (``agents.factory``): ``privileged``. It needs a single, unwrapped-able env (not vectorised).
 """
@@ -15,15 +15,15 @@ Spec (``agents.factory``): ``privileged``. It needs a single, unwrapped-able env
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from agents.baselines import BaselineAgent
-from branch_gym.attribution import AttributionConfig
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG
 from branch_gym.sim.validation import require_positive
+from recon.metrics import evaluate
 
 SPEC_KIND = "privileged"
 
@@ -40,13 +40,11 @@ class PrivilegedConfig:
             scan all lie within 45 deg of the home optical axis, issue 13).
         view_band_fov: Branches whose base lies within this many vertical FoVs of the camera
             height are the ones in view (our choice: 0.5, the image's half height).
-        seen: When a frame has shown a branch well enough (the attribution's threshold).
     """
 
     candidate_angles_deg: tuple[float, ...] = DISCRETE_ANGLES_DEG
     good_view_deg: float = 45.0
     view_band_fov: float = 0.5
-    seen: AttributionConfig = field(default_factory=AttributionConfig)
 
     def __post_init__(self) -> None:
         if not self.candidate_angles_deg or 0.0 not in self.candidate_angles_deg:
@@ -112,18 +110,18 @@ class PrivilegedAgent(BaselineAgent):
         return current if best[0] <= _worst_view_deg(pending, current) else float(best[2])
 
     def _pending_directions_rad(self) -> np.ndarray:
-        """Headings (rad, 0 along +y) of the in-view branches no frame has shown well yet."""
+        """Headings (rad, 0 along +y) of the in-view branches the model does not match yet."""
         session, config = self.session, self.config
-        tree, visibility = session.tree, session.sensor.visibility
+        tree = session.tree
         if tree is None:
             return np.zeros(0)
+        metrics = evaluate(session.model, tree, scanned_top_z_m=session.camera_height_m)
+        matched = {j for j, _ in metrics.matches}
         half_band_m = config.view_band_fov * session.vertical_fov_m
         headings = []
         for j, branch in enumerate(tree.secondaries):
             points = np.asarray(branch.points, float)
-            if abs(points[0, 2] - session.camera_height_m) > half_band_m:
-                continue
-            if visibility.peak_pixels[j] >= config.seen.seen_min_pixels:
+            if j in matched or abs(points[0, 2] - session.camera_height_m) > half_band_m:
                 continue
             direction = points[-1] - points[0]
             headings.append(math.atan2(-direction[0], direction[1]))

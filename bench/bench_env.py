@@ -8,6 +8,20 @@ observation. ``env_overhead_ms`` is the env's own share per step (scoring agains
 observation). Targets (issue "Gymnasium environment"): >= 15 and >= 50 steps/s.
 ``env_steps_per_s_oracle_fast`` is the oracle's fast training mode (``render_tracking_frames=
 False``: only the frames an iteration runs on are rendered).
+
+Step cost against its floor (issue "An environment fast enough to learn in"), all in this run, on
+the same core:
+
+* ``env_step_ms``: median ``env_step_ms`` of the LK episodes' steps (scan step, scoring and
+  observation); ``env_step_floor_ms`` = ``TRACKING_FRAMES`` x ``render_frame_ms`` +
+  ``recon_iteration_ms``, both measured here with :mod:`bench.bench_sim` and
+  :mod:`bench.bench_recon`; ``env_step_over_floor`` their ratio (target <= 1.15).
+* ``env_step_fast_ms``: the same for the training mode (oracle, pose-only tracking frames);
+  ``env_step_floor_fast_ms`` = one ``render_frame_ms`` + the median modeler iteration of those
+  very steps (the oracle's); ``env_step_over_floor_fast`` their ratio (target <= 1.3).
+* ``env_steps_per_s_mix``: the training mode with the fixed action mix of
+  :mod:`branch_gym.training.action_mix` (one rotation every 10 steps), the single-core rate that
+  ``train_steps_per_s_fast`` (bench_train, 2 cores) is compared with.
 """
 
 from __future__ import annotations
@@ -22,9 +36,15 @@ import numpy as np
 
 import branch_gym
 from agents.baselines import NoRotationAgent
+from bench import bench_recon, bench_sim
+from branch_gym.sim.world import World
+from branch_gym.training.action_mix import FixedActionMix
 
 SEEDS = (0, 1, 2)
 WARMUP_SEED = 100
+TRACKING_FRAMES = 8  # ModelerConfig.tracking_frames: renders per LK step
+FLOOR_RENDER_SEEDS = (0,)  # one straight scan (~48 renders) for the in-run render figure
+FLOOR_RECON_SEEDS = (0, 1)  # two recorded scans for the in-run iteration figure
 
 
 @contextmanager
@@ -43,11 +63,20 @@ def _one_core():
             os.sched_setaffinity(0, affinity)
 
 
-def _steps_per_s(tracker: str, **kwargs: object) -> tuple[float, float]:
-    """(env steps per second over whole episodes, median env overhead per step in ms)."""
+def _episodes(tracker: str, mix: bool = False, **kwargs: object) -> dict[str, float]:
+    """Whole episodes of ``SEEDS``: steps per second and per-step medians (ms).
+
+    Returns:
+        ``steps_per_s``, ``overhead_ms`` (scoring + observation), ``step_ms`` (env step) and
+        ``iteration_ms`` (the modeler's iterations of a step).
+    """
     env = gymnasium.make(branch_gym.ENV_ID, tracker=tracker, info_timings=True, **kwargs)
+    if mix:
+        env = FixedActionMix(env)
     agent = NoRotationAgent()
     overhead_ms: list[float] = []
+    step_ms: list[float] = []
+    iteration_ms: list[float] = []
 
     def episode(seed: int) -> int:
         obs, _ = env.reset(seed=seed)
@@ -57,26 +86,61 @@ def _steps_per_s(tracker: str, **kwargs: object) -> tuple[float, float]:
             obs, _, terminated, truncated, info = env.step(action)
             timings = info["timings_ms"]
             overhead_ms.append(timings["metrics_ms"] + timings["observation_ms"])
+            step_ms.append(timings["env_step_ms"])
+            iteration_ms.append(timings.get("modeler_total_ms", np.nan))
             steps, done = steps + 1, terminated or truncated
         return steps
 
     episode(WARMUP_SEED)
-    overhead_ms.clear()
+    for times in (overhead_ms, step_ms, iteration_ms):
+        times.clear()
     start = time.perf_counter()
     steps = sum(episode(seed) for seed in SEEDS)
     elapsed = time.perf_counter() - start
     env.close()
-    return steps / elapsed, float(np.median(overhead_ms))
+    return {
+        "steps_per_s": steps / elapsed,
+        "overhead_ms": float(np.median(overhead_ms)),
+        "step_ms": float(np.median(step_ms)),
+        "iteration_ms": float(np.nanmedian(iteration_ms)),
+    }
+
+
+def _floor_figures() -> tuple[float, float]:
+    """(render_frame_ms, recon_iteration_ms) measured now, as bench_sim and bench_recon do."""
+    render_ms = bench_sim.render_frame_ms(FLOOR_RENDER_SEEDS)
+    world = World()
+    try:
+        recordings = [bench_recon.record_scan(world, seed) for seed in FLOOR_RECON_SEEDS]
+    finally:
+        world.close()
+    bench_recon.replay(recordings[0])  # warm-up
+    reports = [report for frames in recordings for report in bench_recon.replay(frames)]
+    return render_ms, bench_recon.summarise(reports)["recon_iteration_ms"]
 
 
 def run() -> dict[str, float]:
     with _one_core():
-        lk, lk_overhead = _steps_per_s("lk")
-        oracle, _ = _steps_per_s("oracle")
-        oracle_fast, _ = _steps_per_s("oracle", render_tracking_frames=False)
+        render_ms, iteration_ms = _floor_figures()
+        lk = _episodes("lk")
+        oracle = _episodes("oracle")
+        fast = _episodes("oracle", render_tracking_frames=False)
+        mix = _episodes("oracle", mix=True, render_tracking_frames=False)
+    floor_ms = TRACKING_FRAMES * render_ms + iteration_ms
+    floor_fast_ms = render_ms + fast["iteration_ms"]
     return {
-        "env_steps_per_s": lk,
-        "env_steps_per_s_oracle": oracle,
-        "env_steps_per_s_oracle_fast": oracle_fast,
-        "env_overhead_ms": lk_overhead,
+        "env_steps_per_s": lk["steps_per_s"],
+        "env_steps_per_s_oracle": oracle["steps_per_s"],
+        "env_steps_per_s_oracle_fast": fast["steps_per_s"],
+        "env_steps_per_s_mix": mix["steps_per_s"],
+        "env_overhead_ms": lk["overhead_ms"],
+        "env_overhead_fast_ms": fast["overhead_ms"],
+        "env_floor_render_frame_ms": render_ms,
+        "env_floor_recon_iteration_ms": iteration_ms,
+        "env_step_ms": lk["step_ms"],
+        "env_step_floor_ms": floor_ms,
+        "env_step_over_floor": lk["step_ms"] / floor_ms,
+        "env_step_fast_ms": fast["step_ms"],
+        "env_step_floor_fast_ms": floor_fast_ms,
+        "env_step_over_floor_fast": fast["step_ms"] / floor_fast_ms,
     }

@@ -12,14 +12,23 @@ policy's forward passes and the update all count; process start-up and env creat
 ``train_steps_per_s_trigger_recipe`` is the recipe of the shipped model (README): the trigger env,
 the oracle's fast mode and a policy that starts holding (``first_action_logit_init`` 3), with
 rollouts of ``RECIPE_N_STEPS`` per env.
+
+``train_steps_per_s_fast``: the training mode (oracle tracker, pose-only tracking frames) with the
+fixed action mix of :mod:`branch_gym.training.action_mix` (one rotation every 10 steps, whatever
+the policy sends), the default rollout length (``PPOConfig.n_steps``, 256 per env) and one update;
+the learner's torch uses ``N_ENVS`` threads (the env workers wait during the update). Compare it
+with twice ``env_steps_per_s_mix`` (bench_env, one core, the same mix): ``train_over_env_fast`` is
+their ratio (target >= 0.8).
 """
 
 from __future__ import annotations
 
+import functools
 import time
 
+from branch_gym.training.action_mix import FixedActionMix
 from branch_gym.training.config import PPOConfig, TrainConfig
-from branch_gym.training.envs import make_train_env, policy_class
+from branch_gym.training.envs import make_env, make_train_env, policy_class
 from branch_gym.training.train import apply_first_action_logit
 
 N_ENVS = 2
@@ -31,6 +40,41 @@ SEED = 0
 # The shipped model's recipe steps ~10x faster: longer rollouts within the same time budget.
 RECIPE_N_STEPS = 64
 RECIPE_HOLD_LOGIT = 3.0
+FAST_N_STEPS = PPOConfig().n_steps  # the shipped recipe's rollout length
+
+
+def _mixed_env(config: TrainConfig, rank: int) -> FixedActionMix:
+    """Training env ``rank`` playing the fixed action mix (picklable for ``SubprocVecEnv``)."""
+    return FixedActionMix(make_env(config, rank))
+
+
+def train_steps_per_s_fast(n_steps: int = FAST_N_STEPS) -> float:
+    """Env steps per second of ``PPO.learn`` (2 envs, training mode, fixed action mix)."""
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(N_ENVS)
+    ppo = PPOConfig(n_steps=n_steps)
+    steps = n_steps * N_ENVS
+    config = TrainConfig(
+        timesteps=steps, n_envs=N_ENVS, seed=SEED, tracker="oracle", eval_every=0, ppo=ppo,
+        render_tracking_frames=False, normalize=False,
+    )  # fmt: skip
+    venv = SubprocVecEnv([functools.partial(_mixed_env, config, rank) for rank in range(N_ENVS)])
+    try:
+        model = PPO(
+            policy_class(venv.observation_space), venv, seed=SEED, device="cpu", verbose=0,
+            **ppo.sb3_kwargs(),
+        )  # fmt: skip
+        start = time.perf_counter()
+        model.learn(total_timesteps=steps)
+        elapsed = time.perf_counter() - start
+    finally:
+        venv.close()
+        torch.set_num_threads(threads)
+    return model.num_timesteps / elapsed
 
 
 def _train_steps_per_s(tracker: str, n_steps: int = BENCH_N_STEPS, **recipe: object) -> float:
@@ -69,6 +113,7 @@ def _train_steps_per_s(tracker: str, n_steps: int = BENCH_N_STEPS, **recipe: obj
 
 def run() -> dict[str, float]:
     return {
+        "train_steps_per_s_fast": train_steps_per_s_fast(),
         "train_steps_per_s": _train_steps_per_s("lk"),
         "train_steps_per_s_oracle": _train_steps_per_s("oracle"),
         "train_steps_per_s_trigger_recipe": _train_steps_per_s(

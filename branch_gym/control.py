@@ -20,7 +20,7 @@ import numpy as np
 
 from branch_gym.sim.robot.motion import orbit_camera_twist
 from branch_gym.sim.validation import require_non_negative, require_positive
-from recon.camera import CameraIntrinsics, invert_pose, project_points, transform_points
+from recon.camera import CameraIntrinsics
 from recon.model import BranchModel
 
 WORLD_UP = np.array([0.0, 0.0, 1.0])
@@ -29,6 +29,10 @@ WORLD_UP = np.array([0.0, 0.0, 1.0])
 ROTATION_TOLERANCE_DEG = 0.5
 # Smallest orbit radius (m): guards the yaw rate when the camera sits on the pivot axis.
 _MIN_ORBIT_RADIUS_M = 1e-3
+# Points at most this far in front of the camera do not project (m; recon.camera.project_points).
+_FRONT_DEPTH_M = 1e-9
+# Norms below this are treated as zero when normalising a direction (guards a division).
+_MIN_NORM = 1e-12
 # An orbit is complete when less than this is left to turn (rad).
 _ORBIT_DONE_RAD = 1e-6
 
@@ -89,42 +93,61 @@ class PrimaryBranchController:
         self, primary: BranchModel | None, T_world_camera: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, int] | None:
         """Model point projected nearest row h/2: (pixel (2,), camera-frame point (3,), index)."""
+        found = self._look_at(primary, T_world_camera)
+        if found is None:
+            return None
+        pixel, points_camera, index = found
+        return pixel, points_camera[index].copy(), index
+
+    def _look_at(
+        self, primary: BranchModel | None, T_world_camera: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, int] | None:
+        """(pixel (2,), all model points in the camera frame (N, 3), index) or None.
+
+        One transform of the model serves the projection, the look-at point and the tangent
+        (:func:`recon.camera.project_points` and ``transform_points`` of the same pose, fused).
+        """
         if primary is None or len(primary.points) < 2:
             return None
         intr = self.intrinsics
-        pixels, depth = project_points(primary.points, T_world_camera, intr)
-        in_view = (depth > 0) & np.isfinite(pixels[:, 0])
-        in_view &= (pixels[:, 0] >= 0) & (pixels[:, 0] <= intr.width - 1)
-        in_view &= (pixels[:, 1] >= 0) & (pixels[:, 1] <= intr.height - 1)
+        R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
+        points_camera = primary.points @ R - R.T @ t
+        z = points_camera[:, 2]
+        front = z > _FRONT_DEPTH_M
+        if not front.any():
+            return None
+        candidates = np.flatnonzero(front)
+        u = intr.fx * points_camera[candidates, 0] / z[candidates] + intr.cx
+        v = intr.fy * points_camera[candidates, 1] / z[candidates] + intr.cy
+        in_view = (u >= 0) & (u <= intr.width - 1) & (v >= 0) & (v <= intr.height - 1)
         if not in_view.any():
             return None
-        candidates = np.flatnonzero(in_view)
-        best = candidates[np.argmin(np.abs(pixels[candidates, 1] - intr.height / 2.0))]
-        p_camera = transform_points(invert_pose(T_world_camera), primary.points[best : best + 1])[0]
-        return pixels[best], p_camera, int(best)
+        u, v, candidates = u[in_view], v[in_view], candidates[in_view]
+        best = int(np.argmin(np.abs(v - intr.height / 2.0)))
+        return np.array([u[best], v[best]]), points_camera, int(candidates[best])
 
     def command(self, primary: BranchModel | None, T_world_camera: np.ndarray) -> FollowCommand:
         """The camera twist for this control step."""
         cfg = self.config
         R = T_world_camera[:3, :3]
         w_camera = R.T @ self._level_correction(R)
-        found = self.look_at_point(primary, T_world_camera)
+        found = self._look_at(primary, T_world_camera)
         if found is None:
             v_camera = R.T @ WORLD_UP * cfg.speed_mps
             return FollowCommand(np.concatenate([v_camera, w_camera]), None)
-        pixel, p_camera, index = found
-        T_camera_world = invert_pose(T_world_camera)
-        ends = primary.points[[max(index - 1, 0), min(index + 1, len(primary.points) - 1)]]
-        ends_camera = transform_points(T_camera_world, ends)
-        grad = ends_camera[1] - ends_camera[0]
+        pixel, points_camera, index = found
+        grad = (
+            points_camera[min(index + 1, len(points_camera) - 1)] - points_camera[max(index - 1, 0)]
+        )
         if grad[1] > 0:  # point up the image (camera -y)
             grad = -grad
-        grad /= max(np.linalg.norm(grad), 1e-12)
+        grad /= max(math.sqrt(float(grad @ grad)), _MIN_NORM)
         pixel_error = (pixel[0] - self.intrinsics.width / 2.0) / (self.intrinsics.width / 2.0)
-        depth_error = (p_camera[2] - cfg.z_target_m) / cfg.z_target_m
-        v = grad + cfg.k_u * pixel_error * np.array([1.0, 0.0, 0.0])
-        v = v + cfg.k_z * depth_error * np.array([0.0, 0.0, 1.0])
-        v_camera = v / max(np.linalg.norm(v), 1e-12) * cfg.speed_mps
+        depth_error = (points_camera[index, 2] - cfg.z_target_m) / cfg.z_target_m
+        v = grad.copy()
+        v[0] += cfg.k_u * pixel_error
+        v[2] += cfg.k_z * depth_error
+        v_camera = v / max(math.sqrt(float(v @ v)), _MIN_NORM) * cfg.speed_mps
         look_at = primary.points[index].copy()
         return FollowCommand(
             np.concatenate([v_camera, w_camera]), look_at, float(pixel_error), float(depth_error)
@@ -133,7 +156,8 @@ class PrimaryBranchController:
     def _level_correction(self, R_world_camera: np.ndarray) -> np.ndarray:
         """World angular velocity turning the image's down axis (camera y) onto world -z."""
         down = R_world_camera[:, 1]
-        axis = np.cross(down, -WORLD_UP)
+        # cross(down, -WORLD_UP), written out: the z component is 0.
+        axis = np.array([-down[1], down[0], 0.0])
         return self.config.k_level_per_s * axis
 
 

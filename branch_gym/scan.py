@@ -35,6 +35,12 @@ from recon.modeler import IterationReport, Modeler, Outcome
 
 logger = logging.getLogger(__name__)
 
+# A control period within this fraction of a whole number of robot sub-steps is that number.
+_STEP_ROUNDING = 1e-9
+# A coarser control period (s) measured against the default: the twist held over 3 robot
+# sub-steps of 1/60 s. It moved the camera path by up to 2.1 mm (ScanConfig.control_dt_s).
+TRAINING_CONTROL_DT_S = 1.0 / 20.0
+
 
 @dataclass(frozen=True)
 class ScanConfig:
@@ -43,7 +49,14 @@ class ScanConfig:
     Attributes:
         speed_mps: Camera speed while following and rotating (reference.md: 2.5 cm/s in sim).
         end_height_m: The scan ends when the camera reaches this height (paper V-A: 0.75 m).
-        control_dt_s: Control period (s); the robot integrates in sub-steps of its own.
+        control_dt_s: Control period (s): how often the follow controller (and the orbit) sets
+            a new twist. The robot integrates in sub-steps of its own
+            (``RobotConfig.control_time_step_s``, 1/60 s) and the modeler is offered a frame
+            after every sub-step, so a longer period holds the twist over several sub-steps
+            without moving where frames are taken. Default 1/60 s: one command per sub-step, as
+            the authors' controller. Measured with 1/20 s (:data:`TRAINING_CONTROL_DT_S`):
+            camera paths 0.8-2.1 mm apart and one matched branch changed in 2 trees, beyond the
+            0.1 mm tolerance, so no preset uses it.
         tracker: "lk" (Lucas-Kanade on the rendered images, the default) or "oracle" (exact
             tracks from the renderer's depth, for ablations and fast training).
         segmenter: "gt", "noisy:mild" | "noisy:moderate" | "noisy:severe", or "learned" |
@@ -98,6 +111,33 @@ class ScanConfig:
         return replace(self, **changes)
 
 
+def reference_scan_config(config: ScanConfig | None = None) -> ScanConfig:
+    """``config`` on the reference (slow) path: every contact check in full, an SVD every step.
+
+    The fast path (the defaults) must reproduce it within the tolerances the equivalence tests
+    state (``tests/test_speed_equivalence.py``).
+    """
+    config = config or ScanConfig()
+    robot = replace(config.world.robot, contact_query_m=0.0, dls_direct_solve=False)
+    return config.replace(world=replace(config.world, robot=robot))
+
+
+def training_scan_config(config: ScanConfig | None = None, hold_twist: bool = False) -> ScanConfig:
+    """The fast training mode of ``config``: the oracle tracker, renders only for iterations.
+
+    Args:
+        config: The settings to start from (the defaults if None).
+        hold_twist: Also set a new twist only every :data:`TRAINING_CONTROL_DT_S` (frames are
+            still taken on the 1/60 s grid; not within the 0.1 mm tolerance, see
+            ``ScanConfig.control_dt_s``); False keeps ``config.control_dt_s``.
+    """
+    config = config or ScanConfig()
+    changes: dict[str, object] = {"tracker": "oracle", "render_tracking_frames": False}
+    if hold_twist:
+        changes["control_dt_s"] = TRAINING_CONTROL_DT_S
+    return config.replace(**changes)
+
+
 @dataclass
 class StepResult:
     """What one :meth:`ScanSession.step` did.
@@ -126,6 +166,10 @@ class ScanSession:
         self.controller = PrimaryBranchController(controller_config, self.intrinsics)
         self.vertical_fov_m = self.intrinsics.vertical_fov_length_m(controller_config.z_target_m)
         self.tree: TreeGT | None = None
+        self._primary = None
+        self._substep_s = self.config.world.robot.control_time_step_s
+        # The orbit's twist follows the pose along the circle: it is set every sub-step.
+        self._orbit_dt_s = min(self.config.control_dt_s, self._substep_s)
         # Called with every frame handed to the modeler, pose-only ones included (recording).
         self.frame_listeners: list[Callable[[Frame], None]] = []
 
@@ -134,6 +178,7 @@ class ScanSession:
         """Start a scan of the tree of ``seed`` from the home pose."""
         self.tree = self.world.reset(seed, tree)
         self.modeler.reset(seed)
+        self._primary = self.modeler.model.primary
         self.sensor.reset(seed)
         self.scan_time_s = 0.0
         self.angle_deg = 0.0
@@ -188,7 +233,7 @@ class ScanSession:
             self._rotate_to(target_angle_deg)
         n_before = len(self.reports)
         while not self.done and len(self.reports) == n_before:
-            command = self.controller.command(self.model.primary, self.world.T_world_camera)
+            command = self.controller.command(self._primary, self.world.T_world_camera)
             self._move(command.twist_camera, self.config.control_dt_s)
         return StepResult(self.reports[start:], self.done, rotated)
 
@@ -196,13 +241,13 @@ class ScanSession:
         """Orbit the camera about the world-vertical axis through the followed branch point."""
         orbit = OrbitMove(
             self.controller,
-            self.model.primary,
+            self._primary,
             self.world.T_world_camera,
             target_angle_deg - self.angle_deg,
             self.config.speed_mps,
         )
         while not self.done and not orbit.finished:
-            twist, dt_s = orbit.command(self.world.T_world_camera, self.config.control_dt_s)
+            twist, dt_s = orbit.command(self.world.T_world_camera, self._orbit_dt_s)
             if not self._move(twist, dt_s):
                 break
             self.angle_deg += orbit.advance(self.world.T_world_camera)
@@ -210,20 +255,25 @@ class ScanSession:
         self._rotation_end_height_m = self.camera_height_m
 
     def _move(self, twist_camera: np.ndarray, dt_s: float) -> bool:
-        """Apply one control step, feed the modeler, check the stop conditions."""
-        status = self.world.apply_camera_twist(twist_camera, dt_s)
-        if not status.ok:
-            self._stop(status.reason)
-            return False
-        self.scan_time_s += dt_s
-        self._observe()
-        if self.done:
-            return False
-        if self.camera_height_m >= self.config.end_height_m:
-            self._stop("end_height")
-        elif self.scan_time_s >= self.config.max_scan_time_s:
-            self._stop("timeout")
-        return not self.done
+        """Apply one control step, sub-step by sub-step: feed the modeler, check the stops."""
+        n_steps = max(1, math.ceil(dt_s / self._substep_s - _STEP_ROUNDING))
+        step_s = dt_s / n_steps
+        for _ in range(n_steps):
+            status = self.world.apply_camera_twist(twist_camera, step_s)
+            if not status.ok:
+                self._stop(status.reason)
+                return False
+            self.scan_time_s += step_s
+            self._observe()
+            if self.done:
+                return False
+            if self.camera_height_m >= self.config.end_height_m:
+                self._stop("end_height")
+            elif self.scan_time_s >= self.config.max_scan_time_s:
+                self._stop("timeout")
+            if self.done:
+                return False
+        return True
 
     def _observe(self) -> None:
         """Render and feed a frame when the modeler wants one."""
@@ -237,6 +287,7 @@ class ScanSession:
         if report is None:
             return
         self.reports.append(report)
+        self._primary = self.modeler.model.primary  # the model changes only in an iteration
         if report.outcome is Outcome.CONSISTENT:
             self._non_consistent_streak = 0
         else:

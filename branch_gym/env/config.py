@@ -3,7 +3,7 @@
 ``gymnasium.make("BranchScan-v0", tracker="oracle", tree="hard", end_height_m=0.5)`` reaches
 :func:`env_config_from_kwargs`, which turns the keywords into an :class:`EnvConfig`. The
 shortcuts ``tracker``, ``segmenter``, ``tree``, ``end_height_m``, ``speed_mps`` and
-``render_tracking_frames`` change the scan
+``render_tracking_frames``, ``control_dt_s`` change the scan
 settings (``scan``, a :class:`branch_gym.scan.ScanConfig`); every other keyword is an
 :class:`EnvConfig` field.
 """
@@ -38,6 +38,7 @@ SCAN_SHORTCUTS = (
     "end_height_m",
     "speed_mps",
     "render_tracking_frames",
+    "control_dt_s",
 )
 # Rotation of 180 deg or more about the branch would look at it from behind the tree's far side.
 _MAX_THETA_DEG = 90.0
@@ -98,6 +99,9 @@ class EnvConfig:
             columns in ``final_metrics``). Off by default: they are measurements, not simulation
             state, so two runs with the same seed and actions would differ there, and
             gymnasium's check_env requires equal infos.
+        score_cache: Score against the ground truth only when the score can have changed (the
+            model's arrays or the secondaries in scope; :mod:`branch_gym.env.score_cache`);
+            False scores after every step (the reference path). Same results either way.
         observation: Observation image size and scales.
         reward: Reward weights.
         scan: The scan (tracker, segmenter, tree distribution, speed, end height, world).
@@ -109,6 +113,7 @@ class EnvConfig:
     trigger_angles_deg: tuple[float, ...] = TRIGGER_ANGLES_DEG
     flatten: bool = False
     info_timings: bool = False
+    score_cache: bool = True
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     scan: ScanConfig = field(default_factory=ScanConfig)
@@ -141,6 +146,7 @@ class EnvConfig:
         for name, kind in (
             ("flatten", bool),
             ("info_timings", bool),
+            ("score_cache", bool),
             ("observation", ObservationConfig),
             ("reward", RewardConfig),
             ("scan", ScanConfig),
@@ -191,7 +197,7 @@ def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
     for key, valid_type in (("tracker", str), ("segmenter", str)):
         if key in shortcuts and not isinstance(shortcuts[key], valid_type):
             raise ValueError(f"{key} must be a str, got {shortcuts[key]!r}")
-    for key in ("end_height_m", "speed_mps"):
+    for key in ("end_height_m", "speed_mps", "control_dt_s"):
         if key in shortcuts and not is_number(shortcuts[key]):
             raise ValueError(f"{key} must be a number, got {shortcuts[key]!r}")
     if "render_tracking_frames" in shortcuts and not isinstance(

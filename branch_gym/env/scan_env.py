@@ -21,9 +21,10 @@ from branch_gym.env.observation import (
 )
 from branch_gym.env.rendering import camera_frame, follow_in_gui, require_display
 from branch_gym.env.reward import REWARD_TERMS, RewardTracker
+from branch_gym.env.score_cache import ScoreCache
 from branch_gym.scan import ScanSession
 from branch_gym.scoring import ScanResult, score_scan
-from recon.metrics import TreeMetrics, evaluate
+from recon.metrics import TreeMetrics
 from recon.modeler import IterationReport
 from recon.timing import stage_timer
 
@@ -109,8 +110,9 @@ class BranchScanEnv(gym.Env):
                                    the scan-time limit included)
     =================  ==========  ==============================================================
 
-    Scoring is :func:`recon.metrics.evaluate` up to the height scanned so far, after every step;
-    the return telescopes to the final score. ``info["reward_terms"]`` splits each reward.
+    Scoring is :func:`recon.metrics.evaluate` up to the height scanned so far, after every step
+    (recomputed only when the model or the branches in scope changed, ``score_cache``); the
+    return telescopes to the final score. ``info["reward_terms"]`` splits each reward.
 
     ## Episode end
 
@@ -204,6 +206,7 @@ class BranchScanEnv(gym.Env):
         self.observation_space = observation_space(config.observation, config.flatten)
         self._session = ScanSession(config.scan)
         self._reward = RewardTracker(config.reward)
+        self._scores = ScoreCache(config.score_cache)
         self._seed: int | None = None
         self._over = True
         self._last_report: IterationReport | None = None
@@ -221,6 +224,7 @@ class BranchScanEnv(gym.Env):
         with stage_timer(env_ms, "reset_ms"):
             self._session.reset(self._seed, tree)
             self._reward.reset()
+            self._scores.reset()
             self._actions.reset()
             self._last_report, self._previous_action, self._over = None, 0.0, False
         metrics = self._score(env_ms)
@@ -290,7 +294,7 @@ class BranchScanEnv(gym.Env):
     def _score(self, env_ms: dict[str, float]) -> TreeMetrics:
         session = self._session
         with stage_timer(env_ms, "metrics_ms"):
-            return evaluate(session.model, session.tree, scanned_top_z_m=session.camera_height_m)
+            return self._scores.score(session.model, session.tree, session.camera_height_m)
 
     def _observe(self, env_ms: dict[str, float]) -> Any:
         with stage_timer(env_ms, "observation_ms"):

@@ -123,7 +123,12 @@ class UR5e:
         self._ik = CameraIK(
             self.config, self._T_world_base, T_flange_camera(self.config.mount), limit_rad
         )
+        # Contact-check skipping (RobotConfig.contact_query_m): the joint vector of the last full
+        # check and how far any point of the arm may move from there before a contact is possible.
+        self._checked_q = np.zeros(N_JOINTS)
+        self._free_motion_m: np.ndarray | None = None
         self.set_joint_positions(base.home_seed_q if q is None else q)
+        self._motion_bounds = self._motion_bound_rows()
 
     # --- state ---------------------------------------------------------------------------
 
@@ -148,6 +153,7 @@ class UR5e:
         if self.body_id in ids:
             raise ValueError("the robot cannot be its own obstacle (self-collision is separate)")
         self._obstacle_ids = ids
+        self._free_motion_m = None
         get_num_joints = self.bullet.p.getNumJoints
         self._obstacle_links = [(b, range(-1, get_num_joints(b))) for b in ids]
 
@@ -161,6 +167,7 @@ class UR5e:
         if q.shape != (N_JOINTS,) or not np.all(np.isfinite(q)):
             raise ValueError(f"q must be a finite ({N_JOINTS},) vector, got {q}")
         self._apply_q(q, self._world_jacobian(q))
+        self._free_motion_m = None  # a teleport: the next step is checked in full
 
     def _apply_q(self, q: np.ndarray, J_world: np.ndarray) -> None:
         """Set the joints and cache the state at ``q`` (pybullet's camera pose, ``J_world``)."""
@@ -178,10 +185,18 @@ class UR5e:
         """Set the joints to ``q``; on contact put the previous state back and describe it."""
         previous = self._state
         self._apply_q(q, J_world)
-        contact = self.check_collision()
+        if self._free_motion_m is not None:
+            moved_m = self._motion_bounds @ np.abs(q - self._checked_q)
+            if np.all(moved_m < self._free_motion_m):
+                return None  # no link can have closed the clearance measured at the last check
+        contact, free_m = self._contact_and_clearance(self.config.contact_query_m)
         if contact is not None:
             self._apply_q(previous.q, previous.J_world)
-        return contact
+            self._free_motion_m = None
+            return contact
+        self._checked_q = q.copy()
+        self._free_motion_m = free_m if np.all(free_m > 0.0) else None
+        return None
 
     # --- motion and inverse kinematics (delegated) ---------------------------------------
 
@@ -288,33 +303,109 @@ class UR5e:
         obstacle link, then non-adjacent links against each other. Axis-aligned bounding boxes
         skip the pairs that cannot touch; pybullet's closest points decide the others.
         """
+        return self._contact_and_clearance(self.config.collision_margin_m)[0]
+
+    def _contact_and_clearance(self, query_m: float) -> tuple[str | None, np.ndarray]:
+        """The first contact (as :meth:`check_collision`), and the free motion when none.
+
+        Args:
+            query_m: Distances are measured up to this (m); at least the collision margin.
+
+        Returns:
+            ``(contact, free_m)``: the contact's description or None, and per row of
+            :meth:`_motion_bound_rows` how far (m) its motion bound may grow before a contact
+            becomes possible: for each moving link its ground gap and obstacle distances, for
+            each self-collision pair its distance, less the margin and capped by ``query_m`` less
+            the margin (all 0 with a contact).
+        """
         closest_points = self._bullet_closest_points
         get_aabb = self._bullet_get_aabb
         margin = self.config.collision_margin_m
+        query_m = max(query_m, margin)
+        n_moving = len(self._all_links) - 1
+        free_m = np.full(n_moving + len(self._self_collision_pairs), query_m - margin)
+        no_motion = np.zeros_like(free_m)
         lower, upper = self._link_aabbs()
-        moving_lower, moving_upper = lower[1:].min(axis=0) - margin, upper[1:].max(axis=0) + margin
+        moving_lower, moving_upper = lower[1:].min(axis=0), upper[1:].max(axis=0)
         ground_m = self.config.ground_height_m
-        if ground_m is not None and moving_lower[2] < ground_m:
-            row = int(np.argmin(lower[1:, 2])) + 1
-            return f"{self._link_names[self._all_links[row]]} reaches below the ground"
+        if ground_m is not None:
+            if moving_lower[2] - margin < ground_m:
+                row = int(np.argmin(lower[1:, 2])) + 1
+                name = self._link_names[self._all_links[row]]
+                return f"{name} reaches below the ground", no_motion
+            np.minimum(free_m[:n_moving], lower[1:, 2] - margin - ground_m, out=free_m[:n_moving])
+        query_lower, query_upper = moving_lower - query_m, moving_upper + query_m
+        row_of = {link: i - 1 for i, link in enumerate(self._all_links)}
         for obstacle, links in self._obstacle_links:
             for link in links:
                 link_lower, link_upper = get_aabb(obstacle, link)
-                if np.any(moving_lower > link_upper) or np.any(moving_upper < link_lower):
+                if np.any(query_lower > link_upper) or np.any(query_upper < link_lower):
                     continue
-                for contact in closest_points(self.body_id, obstacle, margin, linkIndexB=link):
-                    if contact[3] >= 0:
-                        return f"{self._link_names[contact[3]]} touches body {obstacle}"
+                for contact in closest_points(self.body_id, obstacle, query_m, linkIndexB=link):
+                    if contact[3] < 0:
+                        continue
+                    if contact[8] <= margin:
+                        return f"{self._link_names[contact[3]]} touches body {obstacle}", no_motion
+                    row = row_of[contact[3]]
+                    free_m[row] = min(free_m[row], contact[8] - margin)
         if self.config.self_collision:
             a, b = self._pair_rows
-            overlap = np.all(lower[a] <= upper[b] + margin, axis=1) & np.all(
-                lower[b] <= upper[a] + margin, axis=1
+            overlap = np.all(lower[a] <= upper[b] + query_m, axis=1) & np.all(
+                lower[b] <= upper[a] + query_m, axis=1
             )
             for k in np.flatnonzero(overlap):
                 link_a, link_b = self._self_collision_pairs[k]
-                if closest_points(self.body_id, self.body_id, margin, link_a, link_b):
-                    return f"{self._link_names[link_a]} touches {self._link_names[link_b]}"
-        return None
+                for contact in closest_points(self.body_id, self.body_id, query_m, link_a, link_b):
+                    if contact[8] <= margin:
+                        name_a, name_b = self._link_names[link_a], self._link_names[link_b]
+                        return f"{name_a} touches {name_b}", no_motion
+                    free_m[n_moving + k] = min(free_m[n_moving + k], contact[8] - margin)
+        return None, free_m
+
+    def _motion_bound_rows(self) -> np.ndarray:
+        """(n_moving_links + n_self_pairs, 6): bounds of motion per unit joint rotation (m/rad).
+
+        Row k < n_moving_links: no point of moving link k moves farther than ``row @ |dq|``
+        when the joints turn by ``dq``; the rows after it bound how much the distance between the
+        links of each self-collision pair can change (only the joints between them count).
+
+        Joint j's child-link origin lies on its axis; a point of link k is within ``extent_k``
+        (farthest corner of its bounding box from its origin, measured once: the geometry is
+        rigid in the link frame and its box contains it) of that origin, and link origins are
+        rigidly spaced along the chain: ``reach[j, k] = path(j -> k) + extent_k`` bounds the
+        distance of link k's points to axis j at every configuration.
+        """
+        p = self.bullet.p
+        links = self._all_links[1:]
+        origin = {
+            link: np.asarray(self._bullet_link_state(self.body_id, link)[4]) for link in links
+        }
+        origin[-1] = np.asarray(p.getBasePositionAndOrientation(self.body_id)[0])
+        parent = {link: p.getJointInfo(self.body_id, link)[16] for link in links}
+        extent = {}
+        for link in links:
+            box = np.array(self._bullet_get_aabb(self.body_id, link))
+            corners = np.array([[box[i][0], box[j][1], box[k][2]] for i in (0, 1)
+                                for j in (0, 1) for k in (0, 1)])  # fmt: skip
+            extent[link] = float(np.max(np.linalg.norm(corners - origin[link], axis=1)))
+        reach = {-1: np.zeros(N_JOINTS)}
+        for link in links:
+            reach[link] = np.zeros(N_JOINTS)
+            for j, joint_link in enumerate(self._joint_indices):
+                path_m, node = 0.0, link
+                while node not in (joint_link, -1):
+                    path_m += float(np.linalg.norm(origin[node] - origin[parent[node]]))
+                    node = parent[node]
+                if node == joint_link:
+                    reach[link][j] = path_m + extent[link]
+        rows = [reach[link] for link in links]
+        for link_a, link_b in self._self_collision_pairs:
+            moves_a, moves_b = reach[link_a] > 0, reach[link_b] > 0
+            rows.append(
+                np.where(moves_a & ~moves_b, reach[link_a], 0.0)
+                + np.where(moves_b & ~moves_a, reach[link_b], 0.0)
+            )
+        return np.array(rows)
 
 
 def _pose_from_pybullet(position: Sequence[float], quaternion: Sequence[float]) -> np.ndarray:

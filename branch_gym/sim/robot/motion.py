@@ -167,9 +167,32 @@ class CameraMotion:
         self, J_world: np.ndarray, R_world_camera: np.ndarray, twist: np.ndarray
     ) -> tuple[np.ndarray, float]:
         """Damped least-squares joint rates for a camera-frame twist, and the manipulability."""
+        if self.config.dls_direct_solve:
+            direct = self._undamped_joint_rates(J_world, R_world_camera, twist)
+            if direct is not None:
+                return direct
         U, sigma, Vt = np.linalg.svd(camera_frame_jacobian(J_world, R_world_camera))
         gains = sigma / (sigma**2 + self._damping_sq(sigma[-1]))
         return Vt.T @ (gains * (U.T @ twist)), float(np.prod(sigma))
+
+    def _undamped_joint_rates(
+        self, J_world: np.ndarray, R_world_camera: np.ndarray, twist: np.ndarray
+    ) -> tuple[np.ndarray, float] | None:
+        """``J^-1 twist`` and ``|det J|`` where the damping is provably zero, else None.
+
+        The camera-frame Jacobian is the world one with its rows rotated, so its inverse maps
+        the twist rotated to world axes. ``||J^-1||_2 <= ||J^-1||_F``: a Frobenius norm of at
+        most ``1 / damping_sigma_band`` proves ``sigma_min >= damping_sigma_band``, where
+        :meth:`_damping_sq` is 0 and the SVD formula is the plain inverse.
+        """
+        try:
+            J_inv = np.linalg.inv(J_world)
+        except np.linalg.LinAlgError:
+            return None
+        if float(np.sum(J_inv * J_inv)) * self.config.damping_sigma_band**2 > 1.0:
+            return None
+        twist_world = np.concatenate([R_world_camera @ twist[:3], R_world_camera @ twist[3:]])
+        return J_inv @ twist_world, manipulability(J_world)
 
     def _step(self, twist: np.ndarray, step_s: float) -> MotionStatus:
         """One checked control step, integrated with the midpoint rule (second order)."""
