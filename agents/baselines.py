@@ -79,6 +79,9 @@ class BaselineAgent:
             the current angle hold it.
     """
 
+    # A "discrete_hold" env (v1): action 0 holds, k >= 1 targets action_angles_deg[k - 1].
+    hold_action = False
+
     def __init__(
         self,
         theta_max_deg: float = THETA_MAX_DEG,
@@ -103,9 +106,9 @@ class BaselineAgent:
     def for_env(cls, env: Any, *args: Any, **kwargs: Any) -> BaselineAgent:
         """An agent matching a (possibly wrapped or vector) BranchScanEnv's action settings."""
         config = _env_config(env)
-        discrete = config.action_type == "discrete"
+        discrete = config.action_type in ("discrete", "discrete_hold")
         trigger = config.action_type == "trigger"
-        return cls(
+        agent = cls(
             *args,
             theta_max_deg=config.theta_max_deg,
             action_angles_deg=config.discrete_angles_deg if discrete else None,
@@ -113,6 +116,8 @@ class BaselineAgent:
             hold_tolerance_deg=config.scan.rotation_tolerance_deg,
             **kwargs,
         )
+        agent.hold_action = config.action_type == "discrete_hold"
+        return agent
 
     def predict(
         self,
@@ -152,7 +157,10 @@ class BaselineAgent:
             return (angles_deg / self.theta_max_deg).astype(np.float32)[:, None]
         choices = np.asarray(self.action_angles_deg)
         index = np.abs(angles_deg[:, None] - choices[None, :]).argmin(axis=1)
-        return index.astype(np.int64)
+        if not self.hold_action:
+            return index.astype(np.int64)
+        hold = np.abs(angles_deg - current_deg) <= self.hold_tolerance_deg
+        return np.where(hold, 0, index + 1).astype(np.int64)
 
     def _encode_trigger(self, angles_deg: np.ndarray, current_deg: np.ndarray) -> np.ndarray:
         """0 where the target is the current angle; else the trigger of the target's |angle|."""

@@ -6,7 +6,9 @@ spec                       agent
 ``none``                   :class:`agents.baselines.NoRotationAgent` (paper Table I, 0 / 0)
 ``periodic:ANGLE:FREQ``    :class:`agents.baselines.PeriodicAgent`, the paper's controller
 ``disagreement[:ANGLE]``   :class:`agents.disagreement.DisagreementAgent`
-``ppo:PATH``               a trained SB3 PPO model (:func:`agents.ppo.load_policy`)
+``ppo:PATH[@SECONDS]``     a trained SB3 PPO model (:func:`agents.ppo.load_policy`); a v1
+                           model conditioned on the price of scan time acts at SECONDS per
+                           found branch
 ``privileged``             :class:`agents.privileged.PrivilegedAgent`: reads the ground truth
                            (simulation only), the upper bound of a policy
 =========================  =====================================================================
@@ -19,10 +21,20 @@ from typing import Any
 from agents.baselines import NO_ROTATION_SPEC, NoRotationAgent, PeriodicAgent, parse_periodic_spec
 from agents.disagreement import SPEC_KIND as DISAGREEMENT_KIND
 from agents.disagreement import DisagreementAgent, parse_disagreement_spec
-from agents.ppo import PPO_SPEC_PREFIX, action_type_of, check_ppo_spec, load_model, load_policy
+from agents.ppo import (
+    PPO_SPEC_PREFIX,
+    action_type_of,
+    check_ppo_spec,
+    load_model,
+    load_policy,
+    observes_v1,
+    split_price,
+)
 from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
 from agents.privileged import PrivilegedAgent
 from agents.protocol import Agent
+from branch_gym import V1_BRANCH_VALUE_S
+from branch_gym.env.coverage import CoverageConfig
 
 SPEC_FORMS = (
     "'none', 'periodic:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]', 'privileged' or 'ppo:PATH'"
@@ -47,18 +59,29 @@ def check_spec(spec: str) -> None:
         raise ValueError(f"unknown policy spec {spec!r}: expected {SPEC_FORMS}")
 
 
-def spec_action_type(spec: str) -> str:
-    """The env action type an agent of ``spec`` acts in: a model's own, else "continuous".
+def spec_env_kwargs(spec: str) -> dict[str, Any]:
+    """The ``BranchScanEnv`` settings an agent of ``spec`` acts in.
 
-    The baselines decide target angles and encode them for any action type; the continuous env
-    represents every angle exactly, so they act there.
+    The baselines decide target angles and encode them for any action type; the continuous v0
+    env represents every angle exactly, so they act there. A ``ppo:`` model acts in the env of
+    its spaces: its action type, and the v1 coverage memory and price when it observes them.
 
     Raises:
         FileNotFoundError, agents.ppo.ModelFileError: a ``ppo:`` model that cannot be loaded.
     """
     if not spec.startswith(PPO_SPEC_PREFIX):
-        return "continuous"
-    return action_type_of(load_model(check_ppo_spec(spec)).action_space)
+        return {"action_type": "continuous"}
+    model = load_model(check_ppo_spec(spec))
+    kwargs: dict[str, Any] = {"action_type": action_type_of(model.action_space)}
+    if observes_v1(model.observation_space):
+        kwargs.update(coverage=CoverageConfig(), branch_value_s=V1_BRANCH_VALUE_S)
+    return kwargs
+
+
+def spec_reset_options(spec: str) -> dict[str, Any] | None:
+    """``reset`` options of a spec: the fixed price of ``ppo:PATH@SECONDS``, else None."""
+    _, price = split_price(spec)
+    return None if price is None else {"branch_value_s": price}
 
 
 def make_agent(spec: str, env: Any) -> Agent:

@@ -10,6 +10,7 @@ flattened the way the env flattens it. ``agents.factory.make_agent("ppo:PATH", e
 from __future__ import annotations
 
 import logging
+import math
 import pickle
 from pathlib import Path
 from typing import Any
@@ -17,16 +18,21 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from branch_gym.env.config import ObservationConfig
+from branch_gym.env.coverage import CoverageConfig
 from branch_gym.env.layout import (
+    COVERAGE_KEY,
     DISCRETE_ANGLES_DEG,
-    IMAGE_KEY,
     TRIGGER_ANGLES_DEG,
-    VECTOR_KEY,
+    flatten_observation,
 )
+from branch_gym.env.observation import observation_space as observation_space_of
 
 logger = logging.getLogger(__name__)
 
 PPO_SPEC_PREFIX = "ppo:"  # policy spec "ppo:PATH" (eval.py --policies, make_agent)
+# "ppo:PATH@VALUE" evaluates a price-conditioned (v1) policy at VALUE seconds per found branch.
+PRICE_SEPARATOR = "@"
 # The VecNormalize statistics a model was trained with lie beside it: MODEL_vecnormalize.pkl.
 NORMALIZER_SUFFIX = "_vecnormalize.pkl"
 
@@ -35,9 +41,6 @@ def normalizer_path(model_path: str | Path) -> Path:
     """The ``VecNormalize`` statistics file that belongs to a model file."""
     model_path = Path(model_path)
     return model_path.with_name(model_path.stem + NORMALIZER_SUFFIX)
-
-
-_PIXEL_FULL = 255.0  # the flat observation holds the image / 255 (branch_gym.env.observation)
 
 
 class ModelFileError(ValueError):
@@ -126,15 +129,6 @@ class PolicyAgent:
         return self.model.predict(observation, state, episode_start, deterministic)
 
 
-def flatten_observation(observation: dict) -> np.ndarray:
-    """A Dict observation (single or batched) as the flat env gives it: vector, image / 255."""
-    vector = np.asarray(observation[VECTOR_KEY], np.float32)
-    image = np.asarray(observation[IMAGE_KEY])
-    batch = vector.shape[:-1]
-    pixels = image.reshape(*batch, -1).astype(np.float32) / _PIXEL_FULL
-    return np.concatenate([vector, pixels], axis=-1)
-
-
 def load_policy(path: str | Path, env: Any = None) -> PolicyAgent:
     """A trained PPO model as an agent; ``PATH_vecnormalize.pkl`` beside it is applied if present.
 
@@ -164,19 +158,47 @@ def check_ppo_spec(spec: str) -> Path:
         ValueError: not a ``ppo:`` spec, or an empty path.
         FileNotFoundError: the model file does not exist (named).
     """
+    spec, _ = split_price(spec)
     if not spec.startswith(PPO_SPEC_PREFIX) or not spec[len(PPO_SPEC_PREFIX) :]:
-        raise ValueError(f"expected a policy spec 'ppo:PATH_TO_MODEL.zip', got {spec!r}")
+        raise ValueError(f"expected a policy spec 'ppo:PATH_TO_MODEL.zip[@SECONDS]', got {spec!r}")
     path = Path(spec[len(PPO_SPEC_PREFIX) :])
     if not path.is_file():
         raise FileNotFoundError(f"model file {path} of policy spec {spec!r} does not exist")
     return path
 
 
+def observes_v1(observation_space: spaces.Space) -> bool:
+    """Whether a model's observations hold the v1 coverage memory and price (Dict or flat)."""
+    if isinstance(observation_space, spaces.Dict):
+        return COVERAGE_KEY in observation_space.spaces
+    v1 = observation_space_of(ObservationConfig(), True, CoverageConfig(), True)
+    return observation_space.shape == v1.shape
+
+
+def split_price(spec: str) -> tuple[str, float | None]:
+    """``"ppo:PATH@100"`` -> ``("ppo:PATH", 100.0)``; a spec without a price -> ``(spec, None)``.
+
+    Raises:
+        ValueError: a price that is not a positive number of seconds.
+    """
+    head, separator, price = spec.rpartition(PRICE_SEPARATOR)
+    if not separator or not spec.startswith(PPO_SPEC_PREFIX):
+        return spec, None
+    try:
+        value = float(price)
+    except ValueError:
+        raise ValueError(f"policy spec {spec!r}: the price after '@' must be seconds") from None
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"policy spec {spec!r}: the price must be positive seconds, got {value}")
+    return head, value
+
+
 def action_type_of(action_space: spaces.Space) -> str:
     """The ``EnvConfig.action_type`` of the registered envs with this action space.
 
     ``Box`` is "continuous"; ``Discrete(5)`` "discrete" (``DISCRETE_ANGLES_DEG``);
-    ``Discrete(3)`` "trigger" (hold + ``TRIGGER_ANGLES_DEG``).
+    ``Discrete(6)`` "discrete_hold" (hold + ``DISCRETE_ANGLES_DEG``); ``Discrete(3)`` "trigger"
+    (hold + ``TRIGGER_ANGLES_DEG``).
 
     Raises:
         ValueError: a space no registered env has.
@@ -188,6 +210,8 @@ def action_type_of(action_space: spaces.Space) -> str:
             return "trigger"
         if action_space.n == len(DISCRETE_ANGLES_DEG):
             return "discrete"
+        if action_space.n == 1 + len(DISCRETE_ANGLES_DEG):
+            return "discrete_hold"
     raise ValueError(f"no BranchScan env acts in {action_space}")
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from gymnasium.wrappers import RecordVideo
 from tqdm import tqdm
 
-from agents.factory import make_agent, spec_action_type
+from agents.factory import make_agent, spec_env_kwargs
 from branch_gym.env import BranchScanEnv
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.episodes import run_episode
@@ -43,7 +43,7 @@ DEMO_TREES = 4
 
 def _video(out: Path, seed: int, policy: str) -> Path:
     """An MP4 of one scan played by ``policy``: the camera image with the pipeline overlaid."""
-    env = BranchScanEnv(render_mode="rgb_array", action_type=spec_action_type(policy))
+    env = BranchScanEnv(render_mode="rgb_array", **spec_env_kwargs(policy))
     agent = make_agent(policy, env)
     folder = out / "video"
     recorder = RecordVideo(

@@ -5,6 +5,8 @@
   continuous-control envs do); NaN, infinities and other shapes raise ``ValueError``.
 * discrete: ``Discrete(n)``; the angle is ``discrete_angles_deg[a]``. A non-integer or
   out-of-range index raises ``ValueError`` (there is no meaningful nearest index to clip to).
+* discrete_hold: ``Discrete(1 + len(discrete_angles_deg))``; 0 holds the current angle, ``k >= 1``
+  targets ``discrete_angles_deg[k - 1]`` (v1: holding is a choice of its own).
 * trigger: ``Discrete(1 + len(trigger_angles_deg))``; 0 holds the current angle, ``k >= 1``
   advances the paper's cycle (+theta, 0, -theta, 0) by one move with theta =
   ``trigger_angles_deg[k - 1]``: from a rotated view back to 0, from 0 to the side opposite the
@@ -32,7 +34,7 @@ class ActionCodec:
     A trigger codec remembers the side of the last rotation: call :meth:`reset` with the env.
 
     Args:
-        action_type: "continuous", "discrete" or "trigger".
+        action_type: "continuous", "discrete", "discrete_hold" or "trigger".
         theta_max_deg: Angle of the continuous bounds (deg).
         discrete_angles_deg: Angles of the discrete actions (deg).
         trigger_angles_deg: Cycle angles theta of the trigger actions 1.. (deg, positive).
@@ -46,12 +48,15 @@ class ActionCodec:
         trigger_angles_deg: tuple[float, ...] = (),
     ) -> None:
         self.trigger = action_type == "trigger"
-        self.discrete = action_type == "discrete" or self.trigger
+        self.hold = action_type == "discrete_hold"
+        self.discrete = action_type == "discrete" or self.trigger or self.hold
         self.theta_max_deg = float(theta_max_deg)
         self.angles_deg = tuple(float(a) for a in discrete_angles_deg)
         self.trigger_angles_deg = tuple(float(a) for a in trigger_angles_deg)
         if self.trigger:
             self.space: spaces.Space = spaces.Discrete(1 + len(self.trigger_angles_deg))
+        elif self.hold:
+            self.space = spaces.Discrete(1 + len(self.angles_deg))
         elif self.discrete:
             self.space = spaces.Discrete(len(self.angles_deg))
         else:
@@ -78,6 +83,9 @@ class ActionCodec:
             raise ValueError(f"action must be {expected}, got shape {value.shape}: {action!r}")
         if self.trigger:
             return self._trigger_angle(value.reshape(-1)[0], current_angle_deg)
+        if self.hold:
+            k = self._check_index(value.reshape(-1)[0], 1 + len(self.angles_deg), self.angles_deg)
+            return float(current_angle_deg) if k == 0 else self.angles_deg[k - 1]
         if self.discrete:
             return self._discrete_angle(value.reshape(-1)[0])
         if not np.issubdtype(value.dtype, np.number) or np.issubdtype(

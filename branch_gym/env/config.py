@@ -17,6 +17,7 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 from branch_gym.config_utils import is_number
+from branch_gym.env.coverage import CoverageConfig
 from branch_gym.env.layout import (
     ACTION_TYPES,
     DISCRETE_ANGLES_DEG,
@@ -30,7 +31,7 @@ from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.validation import require_int, require_positive
 
 TREE_PRESETS = ("paper", "cluttered", "hard")
-RESET_OPTIONS = ("tree",)
+RESET_OPTIONS = ("tree", "branch_value_s")
 SCAN_SHORTCUTS = (
     "tracker",
     "segmenter",
@@ -99,6 +100,14 @@ class EnvConfig:
             columns in ``final_metrics``). Off by default: they are measurements, not simulation
             state, so two runs with the same seed and actions would differ there, and
             gymnasium's check_env requires equal infos.
+        coverage: The view-coverage memory of the scan band (v1 observations,
+            :mod:`branch_gym.env.coverage`), or None (v0: no memory).
+        branch_value_s: The price of scan time, in seconds of scan time a found branch is
+            worth: ``(low, high)`` draws it log-uniformly per episode and puts it in the
+            observation (``price``: 0 at ``low``, 1 at ``high``), so one policy learns every
+            price; the reward's time term is then ``match_reward / value`` per second. None
+            keeps ``reward.time_penalty_per_s`` (v0). ``reset(options={"branch_value_s": v})``
+            fixes it for one episode.
         score_cache: Score against the ground truth only when the score can have changed (the
             model's arrays or the secondaries in scope; :mod:`branch_gym.env.score_cache`);
             False scores after every step (the reference path). Same results either way.
@@ -114,6 +123,8 @@ class EnvConfig:
     flatten: bool = False
     info_timings: bool = False
     score_cache: bool = True
+    coverage: CoverageConfig | None = None
+    branch_value_s: tuple[float, float] | None = None
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     scan: ScanConfig = field(default_factory=ScanConfig)
@@ -143,6 +154,20 @@ class EnvConfig:
             lambda a: 0.0 < a <= limit,
             f"positive angles (at most theta_max_deg={theta} for a trigger env)",
         )
+        if self.branch_value_s is not None:
+            values = tuple(self.branch_value_s)
+            if not (
+                len(values) == 2
+                and all(is_number(v) and math.isfinite(v) and v > 0 for v in values)
+                and values[0] <= values[1]
+            ):
+                raise ValueError(
+                    "EnvConfig.branch_value_s must be (low, high) positive seconds with "
+                    f"low <= high, got {self.branch_value_s!r}"
+                )
+            object.__setattr__(self, "branch_value_s", tuple(float(v) for v in values))
+        if self.coverage is not None and not isinstance(self.coverage, CoverageConfig):
+            raise ValueError(f"EnvConfig.coverage must be a CoverageConfig, got {self.coverage!r}")
         for name, kind in (
             ("flatten", bool),
             ("info_timings", bool),
@@ -236,6 +261,20 @@ def tree_from_options(options: dict[str, Any] | None) -> TreeGT | None:
     if tree is not None and not isinstance(tree, TreeGT):
         raise ValueError(f"reset option 'tree' must be a TreeGT, got {type(tree).__name__}")
     return tree
+
+
+def branch_value_from_options(options: dict[str, Any] | None) -> float | None:
+    """The ``branch_value_s`` option of ``reset(options=...)`` (seconds), or None.
+
+    Raises:
+        ValueError: not a positive finite number.
+    """
+    value = (options or {}).get("branch_value_s")
+    if value is None:
+        return None
+    if not (is_number(value) and math.isfinite(value) and value > 0):
+        raise ValueError(f"reset option 'branch_value_s' must be positive seconds, got {value!r}")
+    return float(value)
 
 
 def _set_angles(

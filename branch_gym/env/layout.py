@@ -14,7 +14,7 @@ from enum import IntEnum
 
 import numpy as np
 
-ACTION_TYPES = ("continuous", "discrete", "trigger")
+ACTION_TYPES = ("continuous", "discrete", "discrete_hold", "trigger")
 # Largest rotation of the paper's experiments (Table I: 22.5 and 45 deg): the continuous action
 # [-1, 1] spans [-THETA_MAX_DEG, THETA_MAX_DEG].
 THETA_MAX_DEG = 45.0
@@ -67,6 +67,12 @@ class ImageChannel(IntEnum):
 N_CHANNELS = len(ImageChannel)
 IMAGE_KEY = "image"
 VECTOR_KEY = "vector"
+# v1 observations add the view-coverage memory (branch_gym/env/coverage.py) and the price of scan
+# time (the seconds a found branch is worth, normalised); flattened after the image, in this order.
+COVERAGE_KEY = "coverage"
+PRICE_KEY = "price"
+EXTRA_KEYS = (COVERAGE_KEY, PRICE_KEY)
+PIXEL_FULL = 255.0  # the flat observation holds the image / 255
 
 
 def vector_bounds(travel_clip_fov: float) -> tuple[np.ndarray, np.ndarray]:
@@ -107,3 +113,21 @@ def vector_part(obs: dict | np.ndarray) -> np.ndarray:
             f"obs[{VECTOR_KEY!r}] must have {VECTOR_SIZE} entries, got {vector.shape[-1]}"
         )
     return vector[..., :VECTOR_SIZE]
+
+
+def flatten_observation(observation: dict) -> np.ndarray:
+    """A Dict observation (single or batched) as the flat env gives it.
+
+    Order: the vector, the image / 255 (channel-first), then the v1 extras (``EXTRA_KEYS``) that
+    the observation holds, each flattened. The vector fields keep their indices.
+    """
+    vector = np.asarray(observation[VECTOR_KEY], np.float32)
+    batch = vector.shape[:-1]
+    image = np.asarray(observation[IMAGE_KEY]).reshape(*batch, -1).astype(np.float32) / PIXEL_FULL
+    parts = [vector, image]
+    parts += [
+        np.asarray(observation[key], np.float32).reshape(*batch, -1)
+        for key in EXTRA_KEYS
+        if key in observation
+    ]
+    return np.concatenate(parts, axis=-1)

@@ -19,14 +19,18 @@ import numpy as np
 from gymnasium import spaces
 
 from branch_gym.env.config import ObservationConfig
+from branch_gym.env.coverage import CoverageConfig
 from branch_gym.env.layout import (
+    COVERAGE_KEY,
     IMAGE_KEY,
     N_CHANNELS,
     OUTCOME_FIELDS,
+    PRICE_KEY,
     VECTOR_KEY,
     VECTOR_SIZE,
     ImageChannel,
     VectorField,
+    flatten_observation,
     vector_bounds,
 )
 from branch_gym.env.overlay import draw_curve, draw_model
@@ -120,21 +124,42 @@ def pipeline_state(
     )
 
 
-def observation_space(config: ObservationConfig, flatten: bool) -> spaces.Space:
-    """The Dict (or flattened Box) observation space."""
+def observation_space(
+    config: ObservationConfig,
+    flatten: bool,
+    coverage: CoverageConfig | None = None,
+    price: bool = False,
+) -> spaces.Space:
+    """The Dict (or flattened Box) observation space.
+
+    Args:
+        config: Image size and scales.
+        flatten: One flat Box (``layout.flatten_observation`` order) instead of the Dict.
+        coverage: Add the ``coverage`` memory (v1).
+        price: Add the ``price`` of scan time (v1, ``EnvConfig.branch_value_s``).
+    """
     low, high = vector_bounds(config.travel_clip_fov)
     shape = (N_CHANNELS, config.image_height, config.image_width)
+    parts = {
+        VECTOR_KEY: spaces.Box(low, high, dtype=np.float32),
+        IMAGE_KEY: spaces.Box(0, _FULL, shape=shape, dtype=np.uint8),
+    }
+    if coverage is not None:
+        size = coverage.height_bins * coverage.n_channels  # row-major (bins, channels), 1-D
+        parts[COVERAGE_KEY] = spaces.Box(0.0, 1.0, shape=(size,), dtype=np.float32)
+    if price:
+        parts[PRICE_KEY] = spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)
     if flatten:
-        n_pixels = int(np.prod(shape))
-        flat_low = np.concatenate([low, np.zeros(n_pixels, np.float32)])
-        flat_high = np.concatenate([high, np.ones(n_pixels, np.float32)])
+        bounds = [
+            (np.broadcast_to(p.low, p.shape).ravel(), np.broadcast_to(p.high, p.shape).ravel())
+            for p in parts.values()
+        ]
+        image_size = int(np.prod(shape))
+        bounds[1] = (np.zeros(image_size, np.float32), np.ones(image_size, np.float32))
+        flat_low = np.concatenate([b[0] for b in bounds]).astype(np.float32)
+        flat_high = np.concatenate([b[1] for b in bounds]).astype(np.float32)
         return spaces.Box(flat_low, flat_high, dtype=np.float32)
-    return spaces.Dict(
-        {
-            IMAGE_KEY: spaces.Box(0, _FULL, shape=shape, dtype=np.uint8),
-            VECTOR_KEY: spaces.Box(low, high, dtype=np.float32),
-        }
-    )
+    return spaces.Dict(parts)
 
 
 def draw_state(state: PipelineState, config: ObservationConfig) -> Drawing:
@@ -163,9 +188,21 @@ def draw_state(state: PipelineState, config: ObservationConfig) -> Drawing:
 
 
 def make_observation(
-    state: PipelineState, drawing: Drawing, config: ObservationConfig, flatten: bool
+    state: PipelineState,
+    drawing: Drawing,
+    config: ObservationConfig,
+    flatten: bool,
+    extras: dict[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray] | np.ndarray:
-    """The observation of one state (new arrays every call)."""
+    """The observation of one state (new arrays every call).
+
+    Args:
+        state: What the robot knows.
+        drawing: Its canvases (:func:`draw_state`).
+        config: Image size and scales.
+        flatten: Return the flat vector (``layout.flatten_observation``).
+        extras: The v1 entries (``coverage``, ``price``) to add, float32 arrays.
+    """
     channels = np.empty((*drawing.mask.shape, N_CHANNELS), np.uint8)
     channels[..., ImageChannel.MASK] = drawing.mask
     channels[..., ImageChannel.MODEL] = drawing.model
@@ -191,9 +228,8 @@ def make_observation(
         vector[index] = min(count / config.count_scale, 1.0)
     vector[VectorField.PREVIOUS_ACTION] = np.clip(state.previous_action, -1.0, 1.0)
     vector[VectorField.SCAN_TIME] = np.clip(state.scan_time_fraction, 0.0, 1.0)
-    if flatten:
-        return np.concatenate([vector, image.reshape(-1).astype(np.float32) / _FULL])
-    return {IMAGE_KEY: image, VECTOR_KEY: vector}
+    observation = {IMAGE_KEY: image, VECTOR_KEY: vector, **(extras or {})}
+    return flatten_observation(observation) if flatten else observation
 
 
 def _explained(

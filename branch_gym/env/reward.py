@@ -82,10 +82,19 @@ class RewardTracker:
         self.config = config
         self.reset()
 
-    def reset(self) -> None:
-        """Start an episode: an empty model, no scan time."""
+    def reset(self, time_penalty_per_s: float | None = None) -> None:
+        """Start an episode: an empty model, no scan time.
+
+        Args:
+            time_penalty_per_s: This episode's price of a second of scan time (the env's
+                ``branch_value_s``); None keeps ``config.time_penalty_per_s``.
+        """
         self._matched = self._spurious = self._duplicates = 0
         self._scan_time_s = 0.0
+        penalty = (
+            self.config.time_penalty_per_s if time_penalty_per_s is None else time_penalty_per_s
+        )
+        self.time_penalty_per_s = float(penalty)
 
     def step(
         self, metrics: TreeMetrics, scan_time_s: float, failed: bool
@@ -105,7 +114,7 @@ class RewardTracker:
             "matched": c.match_reward * (metrics.n_matched - self._matched),
             "spurious": -c.spurious_penalty * (metrics.n_spurious - self._spurious),
             "duplicates": -c.duplicate_penalty * (metrics.n_duplicates - self._duplicates),
-            "time": -c.time_penalty_per_s * (scan_time_s - self._scan_time_s),
+            "time": -self.time_penalty_per_s * (scan_time_s - self._scan_time_s),
             "failure": -c.failure_penalty if failed else 0.0,
         }
         self._matched, self._spurious = metrics.n_matched, metrics.n_spurious

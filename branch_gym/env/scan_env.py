@@ -10,10 +10,18 @@ import gymnasium as gym
 import numpy as np
 
 from branch_gym.env.actions import ActionCodec
-from branch_gym.env.config import EnvConfig, env_config_from_kwargs, tree_from_options
+from branch_gym.env.config import (
+    EnvConfig,
+    branch_value_from_options,
+    env_config_from_kwargs,
+    tree_from_options,
+)
+from branch_gym.env.coverage import CoverageMemory, rows_to_heights_m
 from branch_gym.env.info import final_metrics, step_info, step_timings
+from branch_gym.env.layout import COVERAGE_KEY, PRICE_KEY
 from branch_gym.env.observation import (
     Drawing,
+    PipelineState,
     draw_state,
     make_observation,
     observation_space,
@@ -25,7 +33,7 @@ from branch_gym.env.score_cache import ScoreCache
 from branch_gym.scan import ScanSession
 from branch_gym.scoring import ScanResult, score_scan
 from recon.metrics import TreeMetrics
-from recon.modeler import IterationReport
+from recon.modeler import IterationReport, Outcome
 from recon.timing import stage_timer
 
 logger = logging.getLogger(__name__)
@@ -56,6 +64,9 @@ class BranchScanEnv(gym.Env):
                                   ``ValueError``.
     ``BranchScanDiscrete-v0``     ``Discrete(5)``: target angle -45, -22.5, 0, 22.5 or 45 deg.
                                   Non-integer or out-of-range indices raise ``ValueError``.
+    ``BranchScan-v1``             as ``BranchScan-v0``: the policy picks any target angle.
+    ``BranchScanDiscrete-v1``     ``Discrete(6)``: 0 holds the current angle; k = 1..5 targets
+                                  -45, -22.5, 0, 22.5 or 45 deg (``action_type="discrete_hold"``).
     ``BranchScanTrigger-v0``      ``Discrete(3)``: 0 holds the angle; 1 / 2 advance the paper's
                                   cycle (+theta, 0, -theta, 0) by one move with theta 22.5 /
                                   45 deg (from a rotated view back to 0, from 0 to the side
@@ -97,6 +108,22 @@ class BranchScanEnv(gym.Env):
     11      ``SCAN_TIME``                  scan time so far / the scan-time limit        [0, 1]
     ======  =============================  ============================================  =======
 
+    v1 observations (``BranchScan-v1``, ``BranchScanDiscrete-v1``; ``coverage=CoverageConfig()``,
+    ``branch_value_s=(25, 400)``) add two entries, flattened after the image in this order:
+
+    ============  ===========================  ==================================================
+    key           shape                        content
+    ============  ===========================  ==================================================
+    ``coverage``  (128,) float32 in [0, 1]     16 height bins x 8 channels, row-major: per height
+                                               bin of the scan band: seen from each of
+                                               the 5 rotation sectors (-45 .. 45 deg), unconfirmed
+                                               2D candidates, model secondaries (their base
+                                               heights), mask-model disagreements
+                                               (:mod:`branch_gym.env.coverage`)
+    ``price``     (1,) float32 in [0, 1]       this episode's branch value: log-scaled, 0 at
+                                               25 s, 1 at 400 s of scan time per found branch
+    ============  ===========================  ==================================================
+
     ## Rewards (ground truth, simulation only; :class:`branch_gym.env.reward.RewardConfig`)
 
     =================  ==========  ==============================================================
@@ -105,7 +132,8 @@ class BranchScanEnv(gym.Env):
     ``matched``        +1.0        ground-truth secondary newly matched (-1.0 if a match is lost)
     ``spurious``       -0.5        spurious model branch added (+0.5 when one is pruned)
     ``duplicates``     -0.5        duplicate of a matched branch added (+0.5 when merged)
-    ``time``           -0.01       second of scan time (following and rotating)
+    ``time``           -0.01       second of scan time (following and rotating); v1: -1 / value,
+                                   the episode's branch value (``branch_value_s``) in seconds
     ``failure``        -1.0        once, when the scan fails (terminated with a failure reason,
                                    the scan-time limit included)
     =================  ==========  ==============================================================
@@ -155,7 +183,10 @@ class BranchScanEnv(gym.Env):
     ``end_height_m``         scan end height (0.75 m); ``speed_mps``: scan speed (0.025 m/s)
     ``scan``                 a full :class:`branch_gym.scan.ScanConfig` (the shortcuts above
                              modify it)
-    ``action_type``          "continuous", "discrete" or "trigger" (set by the id)
+    ``action_type``          "continuous", "discrete", "discrete_hold" or "trigger" (set by id)
+    ``coverage``             a ``CoverageConfig``: the v1 coverage memory (None in v0)
+    ``branch_value_s``       (low, high) s: the per-episode price of scan time (None in v0);
+                             ``reset(options={"branch_value_s": v})`` fixes it
     ``theta_max_deg``        continuous action bound and angle normaliser (45)
     ``discrete_angles_deg``  discrete target angles ((-45, -22.5, 0, 22.5, 45))
     ``trigger_angles_deg``   cycle angles of the trigger actions ((22.5, 45))
@@ -178,6 +209,9 @@ class BranchScanEnv(gym.Env):
 
     - v0: the tables above: 12-entry vector (``SCAN_TIME`` last) and a 3-channel 60x80 image;
       continuous, discrete and trigger actions; the scan-time limit a terminal failure.
+    - v1: adds the ``coverage`` memory and the ``price`` of scan time to the observation, draws
+      the price per episode (the reward's time term follows it), and the discrete id gains a
+      hold action (``discrete_hold``). v0 ids are unchanged.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": RENDER_FPS}  # noqa: RUF012
@@ -203,8 +237,20 @@ class BranchScanEnv(gym.Env):
             config.trigger_angles_deg,
         )
         self.action_space = self._actions.space
-        self.observation_space = observation_space(config.observation, config.flatten)
+        self._priced = config.branch_value_s is not None
+        self.observation_space = observation_space(
+            config.observation, config.flatten, config.coverage, self._priced
+        )
         self._session = ScanSession(config.scan)
+        self._coverage = None
+        if config.coverage is not None:
+            margin_m = self._session.vertical_fov_m / 2.0  # heights seen above and below
+            self._coverage = CoverageMemory(
+                config.coverage,
+                config.scan.world.scan_start_height_m - margin_m,
+                config.scan.end_height_m + margin_m,
+            )
+        self._price = 0.0
         self._reward = RewardTracker(config.reward)
         self._scores = ScoreCache(config.score_cache)
         self._seed: int | None = None
@@ -219,16 +265,22 @@ class BranchScanEnv(gym.Env):
     ) -> tuple[Any, dict[str, Any]]:
         super().reset(seed=seed)
         tree = tree_from_options(options)
+        branch_value_s = self._branch_value_s(branch_value_from_options(options))
         self._seed = int(seed) if seed is not None else int(self.np_random.integers(_SEED_BOUND))
         env_ms: dict[str, float] = {}
         with stage_timer(env_ms, "reset_ms"):
             self._session.reset(self._seed, tree)
-            self._reward.reset()
+            penalty = (
+                None if branch_value_s is None else self.config.reward.match_reward / branch_value_s
+            )
+            self._reward.reset(penalty)
             self._scores.reset()
+            if self._coverage is not None:
+                self._coverage.reset()
             self._actions.reset()
             self._last_report, self._previous_action, self._over = None, 0.0, False
         metrics = self._score(env_ms)
-        obs = self._observe(env_ms)
+        obs = self._observe(env_ms, remember=False)
         terms = dict.fromkeys(REWARD_TERMS, 0.0)
         return obs, self._info(metrics, terms, [], False, env_ms)
 
@@ -253,7 +305,7 @@ class BranchScanEnv(gym.Env):
             metrics = self._score(env_ms)
             failed = terminated and session.failure is not None
             reward, terms = self._reward.step(metrics, session.scan_time_s, failed)
-            obs = self._observe(env_ms)
+            obs = self._observe(env_ms, remember=bool(result.reports))
         info = self._info(metrics, terms, result.reports, result.rotated, env_ms)
         if session.done:
             self._over = True
@@ -296,15 +348,57 @@ class BranchScanEnv(gym.Env):
         with stage_timer(env_ms, "metrics_ms"):
             return self._scores.score(session.model, session.tree, session.camera_height_m)
 
-    def _observe(self, env_ms: dict[str, float]) -> Any:
+    def _observe(self, env_ms: dict[str, float], remember: bool) -> Any:
+        """The observation; with ``remember`` the step's iteration enters the coverage memory."""
         with stage_timer(env_ms, "observation_ms"):
             state = pipeline_state(
                 self._session, self._last_report, self._actions.normalised, self._previous_action
             )
             self._drawing = draw_state(state, self.config.observation)
+            extras: dict[str, np.ndarray] = {}
+            if self._coverage is not None:
+                if remember:
+                    self._remember(state)
+                extras[COVERAGE_KEY] = self._coverage.as_array().ravel()
+            if self._priced:
+                extras[PRICE_KEY] = np.array([self._price], np.float32)
             return make_observation(
-                state, self._drawing, self.config.observation, self.config.flatten
+                state, self._drawing, self.config.observation, self.config.flatten, extras
             )
+
+    def _remember(self, state: PipelineState) -> None:
+        """Put the latest iteration's view, candidates and model into the coverage memory."""
+        session, K = self._session, state.intrinsics
+        z_target = session.controller.config.z_target_m
+        camera_z = session.camera_height_m
+        candidates = self._drawing.candidates
+        unconfirmed_rows = [curve.samples_px[0, 1] for curve, ok in candidates if not ok]
+        heights = rows_to_heights_m(np.array(unconfirmed_rows), camera_z, K.cy, K.fy, z_target)
+        found = np.array([b.points[0, 2] for b in state.model.secondaries if len(b.points)])
+        half_m = session.vertical_fov_m / 2.0
+        disagreed = state.outcome is not None and state.outcome is not Outcome.CONSISTENT
+        self._coverage.update(
+            camera_z - half_m,
+            camera_z + half_m,
+            session.angle_deg,
+            heights,
+            found,
+            camera_z if disagreed else None,
+        )
+
+    def _branch_value_s(self, fixed_s: float | None) -> float | None:
+        """This episode's branch value (s): the reset option, else drawn log-uniformly."""
+        if not self._priced:
+            if fixed_s is not None:
+                raise ValueError("reset option 'branch_value_s' needs an env with branch_value_s")
+            return None
+        low, high = self.config.branch_value_s
+        value = fixed_s
+        if value is None:
+            value = float(np.exp(self.np_random.uniform(np.log(low), np.log(high))))
+        span = np.log(high / low)
+        self._price = float(np.clip(np.log(value / low) / span, 0.0, 1.0)) if span > 0 else 0.0
+        return value
 
     def _info(
         self,

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agents.factory import make_agent, spec_action_type
+from agents.factory import make_agent, spec_env_kwargs, spec_reset_options
 from agents.protocol import Agent
 from branch_gym.env.scan_env import BranchScanEnv
 from branch_gym.recording import recording
@@ -66,7 +66,12 @@ class Episode:
 
 
 def run_episode(
-    agent: Agent, env: Any, seed: int, policy: str = "", deterministic: bool = True
+    agent: Agent,
+    env: Any,
+    seed: int,
+    policy: str = "",
+    deterministic: bool = True,
+    options: dict[str, Any] | None = None,
 ) -> Episode:
     """Play one episode of ``env`` on the tree of ``seed`` with ``agent``.
 
@@ -76,11 +81,12 @@ def run_episode(
         seed: The tree seed passed to ``reset``.
         policy: Name recorded in the result (e.g. the spec).
         deterministic: Passed to ``predict``.
+        options: ``reset`` options (e.g. a fixed ``branch_value_s`` for a v1 env).
 
     Returns:
         The episode, scored with the scan's own ground truth.
     """
-    observation, _ = env.reset(seed=seed)
+    observation, _ = env.reset(seed=seed, options=options)
     episode_start, terminated, truncated, total, steps = True, False, False, 0.0, 0
     while not (terminated or truncated):
         action, _ = agent.predict(
@@ -121,7 +127,7 @@ def run_trial(
         ValueError, FileNotFoundError: a bad spec or model file (see
             :func:`agents.factory.make_agent`).
     """
-    env = BranchScanEnv(scan=scan, action_type=spec_action_type(policy))
+    env = BranchScanEnv(scan=scan, **spec_env_kwargs(policy))
     try:
         agent = make_agent(policy, env)
         recorder = nullcontext() if record is None else recording(
@@ -129,7 +135,7 @@ def run_trial(
             record.jpeg_quality, record.overwrite,
         )  # fmt: skip
         with recorder:
-            return run_episode(agent, env, seed, policy).result
+            return run_episode(agent, env, seed, policy, options=spec_reset_options(policy)).result
     finally:
         env.close()
 
