@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
-from recon.metrics import MetricsConfig, TreeMetrics, aggregate, evaluate
+from recon.metrics import MetricsConfig, TreeMetrics, aggregate, evaluate, index_truth
 from recon.model import BranchModel, TreeModel
 
 PRIMARY_RADIUS_M = 0.005
@@ -307,3 +307,13 @@ def test_completeness_is_the_covered_share_of_the_matched_branch() -> None:
     again = TreeMetrics.from_json_dict(json.loads(json.dumps(metrics.to_json_dict())))
     np.testing.assert_array_equal(again.match_completeness, metrics.match_completeness)
     assert again.sb_completeness_pct == metrics.sb_completeness_pct
+
+
+def test_a_prepared_truth_index_gives_the_same_metrics() -> None:
+    truth = _truth()
+    model = _model(truth.primary, truth.secondaries[:2])
+    index = index_truth(truth)
+    plain, prepared = evaluate(model, truth), evaluate(model, truth, truth_index=index)
+    assert plain.to_json_dict() == prepared.to_json_dict()
+    with pytest.raises(ValueError, match="another MetricsConfig"):
+        evaluate(model, truth, MetricsConfig(band_min_z_m=0.3), truth_index=index)

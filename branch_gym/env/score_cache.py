@@ -15,7 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from branch_gym.sim.tree.ground_truth import TreeGT
-from recon.metrics import MetricsConfig, TreeMetrics, evaluate
+from recon.metrics import MetricsConfig, TreeMetrics, TruthIndex, evaluate, index_truth
 from recon.model import BranchModel, TreeModel
 
 _Fingerprint = tuple[tuple[np.ndarray, np.ndarray], ...]
@@ -54,7 +54,9 @@ class ScoreCache:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the cached score (a new episode)."""
+        """Forget the cached score and the prepared ground truth (a new episode)."""
+        self._truth: TreeGT | None = None
+        self._truth_index: TruthIndex | None = None
         self._key: tuple[int, int] | None = None
         self._fingerprint: _Fingerprint = ()
         self._metrics: TreeMetrics | None = None
@@ -73,6 +75,8 @@ class ScoreCache:
         ):
             return replace(self._metrics, scanned_top_z_m=float(scanned_top_z_m))
         self.evaluations += 1
-        metrics = evaluate(model, tree, self.config, scanned_top_z_m=scanned_top_z_m)
+        if self._truth is not tree:  # the ground truth is prepared once per tree
+            self._truth, self._truth_index = tree, index_truth(tree, self.config)
+        metrics = evaluate(model, tree, self.config, scanned_top_z_m, truth_index=self._truth_index)
         self._key, self._fingerprint, self._metrics = key, fingerprint, metrics
         return metrics
