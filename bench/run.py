@@ -19,6 +19,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 BENCHMARKS = [
     "bench.bench_recon",
+    "bench.bench_segment",
     "bench.bench_sim",
     "bench.bench_scan",
     "bench.bench_env",

@@ -1,0 +1,146 @@
+"""CLI: ``python -m branch_gym.segmenter_training generate|train|evaluate|all ...``.
+
+Examples::
+
+    python -m branch_gym.segmenter_training generate --out runs/segmenter/data --seed 0
+    python -m branch_gym.segmenter_training train --data runs/segmenter/data \
+        --run runs/segmenter/run --seed 0 --export models/segmenter.pt
+    python -m branch_gym.segmenter_training evaluate --weights models/segmenter.pt
+
+Every command is resumable: ``generate`` skips finished shards, ``train`` continues from the
+run folder's checkpoint.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from branch_gym.segmenter_training.config import GenerateConfig, TrainConfig
+
+logger = logging.getLogger("branch_gym.segmenter_training")
+
+
+def _generate(args: argparse.Namespace) -> None:
+    from branch_gym.segmenter_training.generate import (
+        generate_shard,
+        shard_count,
+        shard_path,
+        write_shard,
+    )
+
+    config = GenerateConfig(trees=args.trees, pairs_per_tree=args.pairs_per_tree,
+                            trees_per_shard=args.trees_per_shard)  # fmt: skip
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "generate_config.json").write_text(
+        json.dumps({"seed": args.seed, **config.to_dict()}, indent=2)
+    )
+    todo = [i for i in range(shard_count(config)) if not shard_path(out, i).exists()]
+    for index in tqdm(todo, desc="shards", unit="shard"):
+        write_shard(shard_path(out, index), generate_shard(config, args.seed, index))
+
+
+def _train(args: argparse.Namespace) -> None:
+    from branch_gym.segmenter_training.train import train
+
+    base = TrainConfig()
+    net = replace(base.net, use_flow=args.flow)
+    config = replace(base, net=net, steps=args.steps, batch_size=args.batch_size)
+    train(
+        config,
+        data_dir=Path(args.data),
+        run_dir=Path(args.run),
+        seed=args.seed,
+        validation_dir=Path(args.validation) if args.validation else None,
+        export_path=Path(args.export) if args.export else None,
+        max_minutes=args.max_minutes,
+    )
+
+
+def _evaluate(args: argparse.Namespace) -> None:
+    import cv2
+    import torch
+
+    from branch_gym.segmenter_training.evaluate import EvaluateConfig, evaluate_segmenters
+    from recon.segmentation import load_segmenter
+
+    torch.set_num_threads(1)  # one core, as the segment_ms target
+    cv2.setNumThreads(1)
+
+    variants = {}
+    for index, weights in enumerate(args.weights):
+        segmenter = load_segmenter(f"learned:{weights}")
+        name = Path(weights).stem if len(args.weights) > 1 else "learned"
+        name = name if name not in {n.split("/")[0] for n in variants} else f"{name}_{index}"
+        if segmenter.uses_flow:
+            variants[f"{name}/flow"] = (segmenter, True)
+        variants[f"{name}/rgb_only"] = (segmenter, False)
+    config = EvaluateConfig(trees=args.trees, frames_per_tree=args.frames_per_tree)
+    results = {}
+    for preset in args.presets:
+        results[preset] = evaluate_segmenters(variants, preset, config)
+        for name, figures in results[preset].items():
+            tqdm.write(f"{preset} {name}: {json.dumps(figures)}")
+    if args.out:
+        Path(args.out).write_text(json.dumps(results, indent=2))
+
+
+def _export(args: argparse.Namespace) -> None:
+    from branch_gym.segmenter_training.train import export_checkpoint
+
+    step = export_checkpoint(Path(args.run), Path(args.out))
+    tqdm.write(f"exported step {step} of {args.run} to {args.out}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse the command line and run one command."""
+    parser = argparse.ArgumentParser(prog="python -m branch_gym.segmenter_training")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    gen = sub.add_parser("generate", help="render training frame pairs into shards")
+    gen.add_argument("--out", required=True)
+    gen.add_argument("--seed", type=int, default=0)
+    gen.add_argument("--trees", type=int, default=GenerateConfig.trees)
+    gen.add_argument("--pairs-per-tree", type=int, default=GenerateConfig.pairs_per_tree)
+    gen.add_argument("--trees-per-shard", type=int, default=GenerateConfig.trees_per_shard)
+
+    tr = sub.add_parser("train", help="train (resumes from --run)")
+    tr.add_argument("--data", required=True)
+    tr.add_argument("--run", required=True)
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--validation", default=None, help="shard folder for validation IoU")
+    tr.add_argument("--steps", type=int, default=TrainConfig.steps)
+    tr.add_argument("--batch-size", type=int, default=TrainConfig.batch_size)
+    tr.add_argument("--flow", action="store_true", help="RGB + optical flow input (ablation)")
+    tr.add_argument("--export", default=None, help="write final weights here (+ .config.json)")
+    tr.add_argument("--max-minutes", type=float, default=None, help="stop (resumably) after")
+
+    ev = sub.add_parser("evaluate", help="IoU on unseen trees (seeds 0..trees-1), same frames")
+    ev.add_argument("--weights", nargs="+", required=True, help="weights files to compare")
+    ev.add_argument("--trees", type=int, default=20)
+    ev.add_argument("--frames-per-tree", type=int, default=6)
+    ev.add_argument("--presets", nargs="+", default=["paper", "cluttered", "hard"])
+    ev.add_argument("--out", default=None, help="write the results as JSON")
+
+    ex = sub.add_parser("export", help="export a run's newest checkpoint as weights")
+    ex.add_argument("--run", required=True)
+    ex.add_argument("--out", required=True)
+
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
+    commands = {"generate": _generate, "train": _train, "evaluate": _evaluate, "export": _export}
+    commands[args.command](args)
+    return 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    sys.exit(main())

@@ -1,0 +1,121 @@
+"""IoU of a segmenter against the renderer's labels, on trees never trained on.
+
+Evaluation trees are seeds ``EVAL_SEED_OFFSET + i`` (0, 1, ...; training seeds are >= 1e6) of a
+tree preset, scanned as in ``eval.py``: the camera starts at the home pose (0.20 m from the
+primary, 0.275 m high) and climbs straight up; every ``frame_spacing_m`` a frame is segmented,
+with the frame ``previous_offset_m`` of climb before it as the previous frame (flow input).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from branch_gym.segmenter_training.config import EVAL_SEED_OFFSET
+from branch_gym.segmenter_training.generate import branch_mask, preset_tree_config
+from branch_gym.sim.world import World, WorldConfig
+from recon.segmentation.metrics import mask_iou, pooled_iou
+from recon.segmentation.segmenter import LearnedSegmenter
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class EvaluateConfig:
+    """Which frames are scored.
+
+    Attributes:
+        trees: Trees per preset (seeds ``EVAL_SEED_OFFSET + 0 .. trees - 1``).
+        frames_per_tree: Scored frames per tree.
+        frame_spacing_m: Camera climb between scored frames.
+        previous_offset_m: Climb between the previous frame and the scored one (the modeler's
+            10 mm iteration spacing, paper IV).
+        speed_mps: Climb speed.
+    """
+
+    trees: int = 20
+    frames_per_tree: int = 6
+    frame_spacing_m: float = 0.06
+    previous_offset_m: float = 0.01
+    speed_mps: float = 0.025
+
+
+def render_eval_frames(preset: str, seed: int, config: EvaluateConfig):
+    """Yield (previous_rgb, rgb, labels) along a straight-up scan of tree ``seed``."""
+    world = World(WorldConfig(tree=preset_tree_config(preset)))
+    try:
+        world.reset(seed)
+        up = np.array([0.0, -config.speed_mps, 0.0, 0.0, 0.0, 0.0])
+        for _ in range(config.frames_per_tree):
+            previous = world.render()
+            if not world.apply_camera_twist(up, config.previous_offset_m / config.speed_mps).ok:
+                return
+            current = world.render()
+            yield previous.rgb, current.rgb, current.labels
+            gap = config.frame_spacing_m - config.previous_offset_m
+            if not world.apply_camera_twist(up, gap / config.speed_mps).ok:
+                return
+    finally:
+        world.close()
+
+
+def evaluate_segmenters(
+    variants: dict[str, tuple[LearnedSegmenter, bool]],
+    preset: str,
+    config: EvaluateConfig | None = None,
+    progress: bool = True,
+) -> dict[str, dict[str, float]]:
+    """IoU of several segmenters (or input modes) on the same frames of unseen trees.
+
+    Args:
+        variants: name -> (segmenter, use_previous); use_previous False: RGB only.
+        preset: ``paper``, ``cluttered`` or ``hard``.
+        config: Trees and frames.
+        progress: Show a tqdm bar.
+
+    Returns:
+        name -> {``iou`` (pooled over all frames: total intersection / total union),
+        ``iou_frame_mean``, ``iou_frame_p10`` (10th percentile over frames), ``frames``,
+        ``segment_ms_mean``}.
+    """
+    config = config or EvaluateConfig()
+    counts = {name: [0, 0] for name in variants}
+    per_frame: dict[str, list[float]] = {name: [] for name in variants}
+    times: dict[str, list[float]] = {name: [] for name in variants}
+    seeds = range(EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + config.trees)
+    for seed in tqdm(seeds, desc=f"eval {preset}", unit="tree", disable=not progress):
+        for previous, rgb, labels in render_eval_frames(preset, seed, config):
+            truth = branch_mask(labels)
+            for name, (segmenter, use_previous) in variants.items():
+                t0 = time.perf_counter()
+                mask = segmenter.segment(rgb, previous if use_previous else None)
+                times[name].append(time.perf_counter() - t0)
+                counts[name][0] += int(np.count_nonzero(mask & truth))
+                counts[name][1] += int(np.count_nonzero(mask | truth))
+                per_frame[name].append(mask_iou(mask, truth))
+    return {
+        name: {
+            "iou": pooled_iou(*counts[name]),
+            "iou_frame_mean": float(np.mean(per_frame[name])),
+            "iou_frame_p10": float(np.percentile(per_frame[name], 10)),
+            "frames": len(per_frame[name]),
+            "segment_ms_mean": 1000 * float(np.mean(times[name])),
+        }
+        for name in variants
+    }
+
+
+def evaluate_segmenter(
+    segmenter: LearnedSegmenter,
+    preset: str,
+    config: EvaluateConfig | None = None,
+    use_previous: bool = True,
+    progress: bool = True,
+) -> dict[str, float]:
+    """IoU of one segmenter on unseen trees of ``preset`` (see :func:`evaluate_segmenters`)."""
+    variants = {"segmenter": (segmenter, use_previous)}
+    return evaluate_segmenters(variants, preset, config, progress)["segmenter"]

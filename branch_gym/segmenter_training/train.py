@@ -1,0 +1,367 @@
+"""The training loop: augmented pairs -> flow -> network, resumable and deterministic.
+
+Batch ``k`` is drawn from ``np.random.default_rng([seed, k])`` alone (frame choice,
+augmentation, flow drop-out), so a resumed run sees exactly the batches an uninterrupted one
+would, and the same seed gives the same weights. A one-worker ``DataLoader`` prepares batches
+(augmentation and DIS flow, ~60 ms a frame pair) while the main process trains on one thread.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from torch.nn import functional
+from tqdm import tqdm
+
+from branch_gym.segmenter_training.augment import augment_pair
+from branch_gym.segmenter_training.config import AugmentConfig, TrainConfig
+from branch_gym.segmenter_training.generate import (
+    CLASS_PRIMARY,
+    CLASS_SECONDARY,
+    load_shards,
+)
+from recon.segmentation.inputs import FlowConfig, make_input
+from recon.segmentation.metrics import pooled_iou
+from recon.segmentation.network import SegmenterNet, SegmenterNetConfig, count_parameters
+from recon.segmentation.segmenter import LearnedSegmenter
+from recon.segmentation.weights import save_weights
+
+logger = logging.getLogger(__name__)
+
+CHECKPOINT_NAME = "checkpoint.pt"
+HISTORY_NAME = "history.jsonl"
+
+
+def _branch(classes: np.ndarray) -> np.ndarray:
+    return (classes == CLASS_PRIMARY) | (classes == CLASS_SECONDARY)
+
+
+class PairBatches(torch.utils.data.Dataset):
+    """Batch ``k`` of a run: augmented frames with flow, and their branch masks.
+
+    Args:
+        rgb: (N, 2, H, W, 3) uint8 frame pairs.
+        classes: (N, 2, H, W) uint8 class maps.
+        config: Training configuration (batch size, augmentation, flow).
+        seed: Run seed.
+        augment: Randomise the frames (off: the frames as rendered).
+    """
+
+    def __init__(
+        self, rgb: np.ndarray, classes: np.ndarray, config: TrainConfig, seed: int,
+        augment: bool = True,
+    ) -> None:  # fmt: skip
+        self.rgb, self.classes, self.config, self.seed = rgb, classes, config, seed
+        self.augment = augment
+
+    def __len__(self) -> int:
+        return self.config.steps
+
+    def __getitem__(self, step: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """((B, C, H, W) float input, (B, 1, H, W) float target) of batch ``step``."""
+        cv2.setNumThreads(1)
+        rng = np.random.default_rng([self.seed, step])
+        indices = rng.integers(0, len(self.rgb), size=self.config.batch_size)
+        inputs, targets = [], []
+        for i in indices:
+            frames, classes = self.rgb[i], self.classes[i]
+            ch, cw = self.config.crop_hw
+            top = int(rng.integers(0, frames.shape[1] - ch + 1))
+            left = int(rng.integers(0, frames.shape[2] - cw + 1))
+            frames = frames[:, top : top + ch, left : left + cw]
+            classes = classes[:, top : top + ch, left : left + cw]
+            if self.augment:
+                frames, classes = augment_pair(frames, classes, rng, self.config.augment)
+            use_previous = rng.random() >= self.config.augment.flow_drop_probability
+            previous = frames[0] if use_previous else None
+            inputs.append(make_input(frames[1], previous, self.config.net.use_flow,
+                                     self.config.flow))  # fmt: skip
+            targets.append(_branch(classes[1])[None].astype(np.float32))
+        return torch.from_numpy(np.stack(inputs)), torch.from_numpy(np.stack(targets))
+
+
+def segmentation_loss(logits: torch.Tensor, target: torch.Tensor, dice_weight: float):
+    """Binary cross-entropy plus ``dice_weight`` times the soft-Dice loss of the batch.
+
+    Args:
+        logits: (B, 1, H, W) branch logits.
+        target: (B, 1, H, W) float {0, 1} branch mask.
+        dice_weight: Weight of the Dice term.
+
+    Returns:
+        Scalar loss tensor.
+    """
+    bce = functional.binary_cross_entropy_with_logits(logits, target)
+    prob = torch.sigmoid(logits)
+    dims = (1, 2, 3)
+    inter = (prob * target).sum(dims)
+    dice = 1 - (2 * inter + 1) / (prob.sum(dims) + target.sum(dims) + 1)
+    return bce + dice_weight * dice.mean()
+
+
+def _lr_factor(step: int, config: TrainConfig) -> float:
+    warmup = max(1, int(config.warmup_fraction * config.steps))
+    if step < warmup:
+        return (step + 1) / warmup
+    progress = (step - warmup) / max(1, config.steps - warmup)
+    return 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
+
+
+def validation_iou(
+    model: SegmenterNet, rgb: np.ndarray, classes: np.ndarray, config: TrainConfig
+) -> dict[str, float]:
+    """Pooled IoU of ``model`` on un-augmented pairs (with and without the previous frame)."""
+    segmenter = LearnedSegmenter(model, config.flow, config.threshold)
+    result = {}
+    for name, with_previous in (("iou", True), ("iou_no_flow", False)):
+        if name == "iou_no_flow" and not config.net.use_flow:
+            continue
+        inter = union = 0
+        for pair, cls in zip(rgb, classes, strict=True):
+            mask = segmenter.segment(pair[1], pair[0] if with_previous else None)
+            truth = _branch(cls[1])
+            inter += int(np.count_nonzero(mask & truth))
+            union += int(np.count_nonzero(mask | truth))
+        result[name] = pooled_iou(inter, union)
+    return result
+
+
+def _atomic_torch_save(obj: object, path: Path) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    os.close(fd)
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+@dataclass
+class TrainResult:
+    """What :func:`train` produced.
+
+    Attributes:
+        model: The trained network (eval mode).
+        history: One dict per logged step (``step``, ``loss``, ``lr``, validation IoUs).
+        wall_s: Training wall time of this call, seconds.
+        finished: All ``config.steps`` done (False: stopped by ``max_minutes``).
+    """
+
+    model: SegmenterNet
+    history: list[dict]
+    wall_s: float
+    finished: bool
+
+
+def train(
+    config: TrainConfig,
+    data_dir: Path,
+    run_dir: Path,
+    seed: int,
+    validation_dir: Path | None = None,
+    export_path: Path | None = None,
+    max_minutes: float | None = None,
+    workers: int = 1,
+    progress: bool = True,
+) -> TrainResult:
+    """Train (or resume training) a segmenter.
+
+    Args:
+        config: Hyperparameters.
+        data_dir: Shards from ``generate``.
+        run_dir: Checkpoint and history folder (resumes from its checkpoint).
+        seed: Seeds the weights and every batch.
+        validation_dir: Shards for validation IoU (raw frames), or None.
+        export_path: Where to write the final weights (+ ``.config.json``, ``_curve.png``).
+        max_minutes: Stop (checkpointed, resumable) after this many minutes.
+        workers: DataLoader worker processes (0: prepare batches in this process).
+        progress: Show a tqdm bar.
+
+    Returns:
+        The model and its history.
+    """
+    torch.set_num_threads(config.threads)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    data = load_shards(data_dir)
+    val = load_shards(validation_dir) if validation_dir else None
+    torch.manual_seed(seed)
+    model = SegmenterNet(config.net)
+    optimiser = torch.optim.AdamW(
+        model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
+    )
+    history: list[dict] = []
+    start, running = 0, None
+    checkpoint_path = run_dir / CHECKPOINT_NAME
+    if checkpoint_path.exists():
+        state = torch.load(checkpoint_path, map_location="cpu", weights_only=False)
+        if state["config"] != config.to_dict() or state["seed"] != seed:
+            raise ValueError(
+                f"checkpoint {checkpoint_path} was written with another config or seed; "
+                "use a new --run folder"
+            )
+        model.load_state_dict(state["model"])
+        optimiser.load_state_dict(state["optimiser"])
+        start, history = state["step"], state["history"]
+        running = state.get("loss_smooth")
+        logger.info("resuming %s at step %d", checkpoint_path, start)
+    logger.info(
+        "training %d params on %d pairs, steps %d..%d",
+        count_parameters(model), len(data["rgb"]), start, config.steps,
+    )  # fmt: skip
+
+    def save_checkpoint(step: int) -> None:
+        _atomic_torch_save(
+            {"config": config.to_dict(), "seed": seed, "step": step, "history": history,
+             "model": model.state_dict(), "optimiser": optimiser.state_dict(),
+             "loss_smooth": running},
+            checkpoint_path,
+        )  # fmt: skip
+
+    dataset = PairBatches(data["rgb"], data["classes"], config, seed)
+    loader = torch.utils.data.DataLoader(
+        torch.utils.data.Subset(dataset, range(start, config.steps)),
+        batch_size=None, num_workers=workers, prefetch_factor=4 if workers else None,
+        persistent_workers=False,
+    )  # fmt: skip
+    t0 = time.monotonic()
+    step = start
+    bar = tqdm(total=config.steps, initial=start, desc="train", unit="step", disable=not progress)
+    finished = True
+    model.train()
+    for x, y in loader:
+        for group in optimiser.param_groups:
+            group["lr"] = config.learning_rate * _lr_factor(step, config)
+        loss = segmentation_loss(model(x), y, config.dice_weight)
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+        step += 1
+        value = float(loss.detach())
+        running = value if running is None else 0.98 * running + 0.02 * value
+        bar.update(1)
+        bar.set_postfix(loss=f"{running:.4f}")
+        record = None
+        if step % 20 == 0 or step == config.steps:
+            record = {"step": step, "loss": value, "loss_smooth": running,
+                      "lr": optimiser.param_groups[0]["lr"]}  # fmt: skip
+        if val is not None and (step % config.validate_every == 0 or step == config.steps):
+            model.eval()
+            record = {**(record or {"step": step, "loss": value, "loss_smooth": running}),
+                      **validation_iou(model, val["rgb"], val["classes"], config)}  # fmt: skip
+            model.train()
+            bar.write(f"step {step}: {json.dumps(record)}")
+        if record is not None:
+            history.append(record)
+            with open(run_dir / HISTORY_NAME, "a") as f:
+                f.write(json.dumps(record) + "\n")
+        if step % config.checkpoint_every == 0 or step == config.steps:
+            save_checkpoint(step)
+        if max_minutes is not None and time.monotonic() - t0 > 60 * max_minutes:
+            save_checkpoint(step)
+            finished = step >= config.steps
+            break
+    bar.close()
+    model.eval()
+    wall_s = time.monotonic() - t0
+    if finished and export_path is not None:
+        export(model, config, seed, history, export_path, data, wall_s, step)
+    return TrainResult(model, history, wall_s, finished)
+
+
+def export(
+    model: SegmenterNet, config: TrainConfig, seed: int, history: list[dict], path: Path,
+    data: dict[str, np.ndarray] | None, wall_s: float | None, step: int | None = None,
+) -> None:  # fmt: skip
+    """Write weights, ``<stem>.config.json`` and ``<stem>_curve.png`` next to each other.
+
+    Args:
+        model: The network.
+        config: Its training configuration.
+        seed: Training seed.
+        history: Logged steps.
+        path: Weights path (``.pt``).
+        data: Training arrays (for the pair and tree counts), or None.
+        wall_s: Wall time of the last training call, or None.
+        step: Steps trained (default ``config.steps``).
+    """
+    path = Path(path)
+    meta = {"seed": seed, "steps": config.steps if step is None else step,
+            "planned_steps": config.steps, "last_wall_s": wall_s}  # fmt: skip
+    if data is not None:
+        meta.update(pairs=len(data["rgb"]), trees=len(np.unique(data["seeds"])))
+    save_weights(path, model, config.flow, config.threshold, meta)
+    summary = {"train": config.to_dict(), "meta": meta,
+               "parameters": count_parameters(model),
+               "final_validation": next((h for h in reversed(history) if "iou" in h), None),
+               }  # fmt: skip
+    path.with_name(path.stem + ".config.json").write_text(json.dumps(summary, indent=2))
+    plot_curve(history, path.with_name(path.stem + "_curve.png"))
+
+
+def export_checkpoint(run_dir: Path, path: Path) -> int:
+    """Export the newest checkpoint of a run (finished or not) as a weights file.
+
+    Args:
+        run_dir: The run folder (holds ``checkpoint.pt``).
+        path: Weights path (``.pt``); config JSON and curve PNG are written next to it.
+
+    Returns:
+        The checkpoint's step.
+    """
+    state = torch.load(Path(run_dir) / CHECKPOINT_NAME, map_location="cpu", weights_only=False)
+    cfg = state["config"]
+    net = SegmenterNetConfig.from_dict(cfg["net"])
+    config = TrainConfig(
+        net=net, flow=FlowConfig(**cfg["flow"]),
+        augment=AugmentConfig(**{k: tuple(v) if isinstance(v, list) else v
+                                 for k, v in cfg["augment"].items()}),
+        **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()
+           if k not in ("net", "flow", "augment")},
+    )  # fmt: skip
+    model = SegmenterNet(net)
+    model.load_state_dict(state["model"])
+    model.eval()
+    export(model, config, state["seed"], state["history"], path, None, None, state["step"])
+    return int(state["step"])
+
+
+def plot_curve(history: list[dict], path: Path) -> None:
+    """Training loss and validation IoU against the step, as a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    steps = [h["step"] for h in history if "loss_smooth" in h]
+    ax.plot(steps, [h["loss_smooth"] for h in history if "loss_smooth" in h], label="loss (EMA)")
+    ax.set_xlabel("step")
+    ax.set_ylabel("BCE + Dice loss")
+    ax.set_yscale("log")
+    val = [h for h in history if "iou" in h]
+    if val:
+        ax2 = ax.twinx()
+        ax2.plot([h["step"] for h in val], [h["iou"] for h in val], "o-", color="C1",
+                 label="validation IoU")  # fmt: skip
+        if any("iou_no_flow" in h for h in val):
+            ax2.plot([h["step"] for h in val], [h.get("iou_no_flow") for h in val], "s--",
+                     color="C2", label="validation IoU, no flow")  # fmt: skip
+        ax2.set_ylabel("IoU")
+        ax2.set_ylim(0, 1)
+        ax2.legend(loc="lower right")
+    ax.legend(loc="upper right")
+    ax.set_title("learned segmenter training")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

@@ -1,0 +1,151 @@
+"""The learned segmenter: RGB (+ the previous frame) -> branch mask, and how to load it.
+
+``load_segmenter("learned")`` loads the shipped weights ``models/segmenter.pt`` of the repository
+(found relative to this package: ``<repo>/recon/segmentation/`` -> ``<repo>/models/``; the
+environment variable ``BRANCH_SEGMENTER_WEIGHTS`` overrides that path, e.g. for an installed,
+non-editable copy). ``load_segmenter("learned:PATH")`` loads any other weights file.
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from recon.segmentation.inputs import FlowConfig, make_input
+from recon.segmentation.network import SegmenterNet
+from recon.segmentation.weights import load_weights
+
+logger = logging.getLogger(__name__)
+
+LEARNED_SPEC = "learned"
+WEIGHTS_ENV_VAR = "BRANCH_SEGMENTER_WEIGHTS"
+DEFAULT_WEIGHTS_NAME = "segmenter.pt"
+
+
+def default_weights_path() -> Path:
+    """The shipped weights: ``$BRANCH_SEGMENTER_WEIGHTS`` or ``<repo>/models/segmenter.pt``."""
+    override = os.environ.get(WEIGHTS_ENV_VAR)
+    if override:
+        return Path(override)
+    return Path(__file__).resolve().parents[2] / "models" / DEFAULT_WEIGHTS_NAME
+
+
+def fuse_batch_norm(model: nn.Module) -> nn.Module:
+    """A copy of ``model`` with every Conv2d -> BatchNorm2d pair folded into the conv (eval only).
+
+    Args:
+        model: A network in eval mode.
+
+    Returns:
+        An equivalent network without BatchNorm layers after convolutions (faster on CPU).
+    """
+    fused = copy.deepcopy(model).eval()
+    for module in fused.modules():
+        if not isinstance(module, nn.Sequential):
+            continue
+        children = list(module.named_children())
+        for (_, conv), (bn_name, bn) in itertools.pairwise(children):
+            if not (isinstance(conv, nn.Conv2d) and isinstance(bn, nn.BatchNorm2d)):
+                continue
+            scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+            bias = conv.bias if conv.bias is not None else torch.zeros_like(bn.running_mean)
+            conv.weight = nn.Parameter((conv.weight * scale[:, None, None, None]).detach())
+            conv.bias = nn.Parameter(((bias - bn.running_mean) * scale + bn.bias).detach())
+            setattr(module, bn_name, nn.Identity())
+    return fused
+
+
+class LearnedSegmenter:
+    """A trained :class:`SegmenterNet` wrapped for single frames.
+
+    Args:
+        model: The network (any mode; a BN-folded eval copy is used).
+        flow: Flow normalisation the network was trained with.
+        threshold: Branch probability threshold.
+        source: Where the weights came from (for messages).
+    """
+
+    def __init__(
+        self,
+        model: SegmenterNet,
+        flow: FlowConfig | None = None,
+        threshold: float = 0.5,
+        source: str = "<memory>",
+    ) -> None:
+        self.config = model.config
+        self.flow = flow or FlowConfig()
+        self.threshold = float(threshold)
+        self.source = source
+        self._net = fuse_batch_norm(model).to(memory_format=torch.channels_last)
+        self._logit_threshold = float(np.log(threshold / (1.0 - threshold)))
+
+    @property
+    def uses_flow(self) -> bool:
+        """Whether ``previous_rgb`` is used (optical flow input)."""
+        return self.config.use_flow
+
+    def logits(self, rgb: np.ndarray, previous_rgb: np.ndarray | None = None) -> np.ndarray:
+        """Branch logits of one frame.
+
+        Args:
+            rgb: (H, W, 3) uint8 frame.
+            previous_rgb: (H, W, 3) uint8 previous frame, or None.
+
+        Returns:
+            (H, W) float32 logits (> logit(threshold): branch).
+        """
+        x = make_input(rgb, previous_rgb, self.config.use_flow, self.flow)
+        h, w = x.shape[1:]
+        m = self.config.size_multiple
+        pad_h, pad_w = (-h) % m, (-w) % m
+        tensor = torch.from_numpy(x)[None]
+        if pad_h or pad_w:
+            tensor = nn.functional.pad(tensor, (0, pad_w, 0, pad_h), mode="replicate")
+        with torch.inference_mode():
+            out = self._net(tensor)  # NCHW input measured faster than a channels_last copy
+        return out[0, 0, :h, :w].numpy()
+
+    def segment(self, rgb: np.ndarray, previous_rgb: np.ndarray | None = None) -> np.ndarray:
+        """Branch mask of one frame.
+
+        Args:
+            rgb: (H, W, 3) uint8 frame.
+            previous_rgb: (H, W, 3) uint8 previous frame (flow input), or None; ignored by a
+                network without flow input.
+
+        Returns:
+            (H, W) bool mask, True on the scanned tree's branches.
+        """
+        return self.logits(rgb, previous_rgb) > self._logit_threshold
+
+
+def load_segmenter(spec: str = LEARNED_SPEC) -> LearnedSegmenter:
+    """Load a learned segmenter from a spec string.
+
+    Args:
+        spec: ``"learned"`` (the shipped weights, :func:`default_weights_path`) or
+            ``"learned:PATH"`` (a weights file written by :func:`recon.segmentation.save_weights`).
+
+    Returns:
+        The segmenter.
+
+    Raises:
+        ValueError: Unknown spec.
+        SegmenterWeightsError: Missing, corrupt or mismatched weights file.
+    """
+    if spec == LEARNED_SPEC:
+        path = default_weights_path()
+    elif spec.startswith(LEARNED_SPEC + ":") and len(spec) > len(LEARNED_SPEC) + 1:
+        path = Path(spec[len(LEARNED_SPEC) + 1 :]).expanduser()
+    else:
+        raise ValueError(f"segmenter spec must be 'learned' or 'learned:PATH', got {spec!r}")
+    model, flow, threshold, _meta = load_weights(path)
+    logger.info("loaded segmenter %s (flow input: %s)", path, model.config.use_flow)
+    return LearnedSegmenter(model, flow, threshold, source=str(path))
