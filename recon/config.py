@@ -36,6 +36,10 @@ class ModelerConfig:
         ransac_iterations: RANSAC hypotheses per fit (our choice: enough for 40 % outliers).
         min_lifted_points: Fewest lifted points to (re)initialise the primary (our choice: a cubic
             needs 4; one more gives RANSAC a check).
+        primary_depth_gate_m: Newly lifted primary points farther than this in camera depth
+            from the model's primary where it agrees with the mask are dropped before the refit
+            (ours: the RANSAC inlier distance; a side branch pointing at the camera covers the
+            trunk in the mask and was lifted as primary; 0 disables).
         primary_spacing_px: Target spacing of model points when projected (paper IV: ~30 px).
         image_margin_px: Model points are "visible" when projected this far inside the image
             (reference.md: the 2D stage drops pixels within 10 px of the border).
@@ -48,7 +52,9 @@ class ModelerConfig:
             choice: the longest secondary is 15 cm, reference.md).
         secondary_min_points: Fewest lifted points to create a secondary (our choice).
         secondary_merge_distance_m: A detection whose samples lie (median) this close to a model
-            secondary is the same branch (our choice: half the metric's 2 cm match radius).
+            secondary is the same branch (our choice: half the metric's 2 cm match radius); the
+            median is taken from the shorter of the two onto the longer, so that a detection
+            seeing more of a branch than the model holds still joins it.
         secondary_merge_angle_deg: ... and whose direction differs by at most this (our choice).
         secondary_min_view_angle_deg: A secondary detection whose base-to-tip direction lies closer
             than this to the viewing ray is dropped: seen end-on, its depth along the branch is
@@ -58,8 +64,14 @@ class ModelerConfig:
             detections without rotation on 12 trees.
         secondary_max_foreshortening: A lifted secondary is cut before the first step between
             samples that is longer in 3D than this times its image length at its depth, i.e. a
-            branch receding within asin(1/3) ~ 19 deg of the viewing ray (our choice, measured:
-            lifted tips of receding branches otherwise stretched branches up to 4x).
+            branch receding within asin(1/6) ~ 10 deg of the viewing ray (our choice, measured:
+            lifted tips of receding branches otherwise stretched branches up to 4x; the former
+            3, ~19 deg, cut correctly lifted branches receding at 15-25 deg from the viewing
+            ray, measured ratios 3.2-3.8 on seed 105, and dropped them).
+        secondary_extend_to_junction: Report each secondary from its junction on the primary
+            (where its connection ray met it) to its first observed point (ours: the base of a
+            side branch is hidden by the primary's silhouette, and for receding branches over
+            several cm; off, secondaries start where the first lifted sample is).
         secondary_trust_min: A secondary whose trust falls below this is deleted (the authors'
             code kept a trust score, reference.md; threshold our choice).
         secondary_confirmations: Observations a secondary needs to be reported (our choice:
@@ -82,6 +94,7 @@ class ModelerConfig:
     ransac_min_inlier_fraction: float = 0.6
     ransac_iterations: int = 40
     min_lifted_points: int = 5
+    primary_depth_gate_m: float = 0.03
     primary_spacing_px: float = 30.0
     image_margin_px: float = 10.0
     radius_from_paper_formula: bool = False
@@ -91,7 +104,8 @@ class ModelerConfig:
     secondary_merge_distance_m: float = 0.01
     secondary_merge_angle_deg: float = 45.0
     secondary_min_view_angle_deg: float = 0.0
-    secondary_max_foreshortening: float = 3.0
+    secondary_max_foreshortening: float = 6.0
+    secondary_extend_to_junction: bool = True
     secondary_trust_min: int = -2
     secondary_confirmations: int = 1
     secondary_max_observations: int = 400
@@ -99,7 +113,11 @@ class ModelerConfig:
     primary_sample_spacing_m: float = 0.005
 
     def __post_init__(self) -> None:
-        not_positive = ("secondary_trust_min", "secondary_min_view_angle_deg")
+        not_positive = (
+            "secondary_trust_min",
+            "secondary_min_view_angle_deg",
+            "primary_depth_gate_m",
+        )
         positive = [
             f.name
             for f in fields(self)
@@ -109,6 +127,8 @@ class ModelerConfig:
         for name in ("consistency_min_fraction", "ransac_min_inlier_fraction"):
             if getattr(self, name) > 1:
                 raise ValueError(f"ModelerConfig.{name} is a fraction in (0, 1]")
+        if not self.primary_depth_gate_m >= 0.0:
+            raise ValueError("ModelerConfig.primary_depth_gate_m must be >= 0")
         if not 0.0 <= self.secondary_min_view_angle_deg < 90.0:
             raise ValueError("ModelerConfig.secondary_min_view_angle_deg must be in [0, 90)")
         if self.tracking_frames < 2:

@@ -19,7 +19,7 @@ PB_TOLERANCE_M = 1e-4  # issue 14: PB residual within 0.1 mm
 MEMORY_EPISODES = 300
 MEMORY_LIMIT_MB = 50.0  # issue 14
 MEMORY_WARMUP_EPISODES = 5
-MEMORY_END_HEIGHT_M = 0.33  # short random-action episodes: ~5 steps each (our choice, for time)
+MEMORY_END_HEIGHT_M = 0.30  # short random-action episodes: ~4 steps each (our choice: CI time)
 
 
 def _final(scan, score_cache: bool, seed: int) -> dict:

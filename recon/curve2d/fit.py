@@ -1,6 +1,7 @@
 """2D curve fitting: primary and secondary branch curves from a branch mask (paper section IV-B).
 
-1. Clean the mask and build its skeleton graph (:mod:`recon.curve2d.skeleton`).
+1. Clean the mask and build its skeleton graph (:mod:`recon.curve2d.skeleton`), small gaps
+   between skeleton components bridged (:mod:`recon.curve2d.skeleton_bridge`).
 2. Orient every edge along the image motion direction (up, -v, by default), giving a DAG.
 3. Primary: search the DAG's directed paths from its sources (every prefix counts), largest
    connected components first; fit a cubic Bezier to each path's pixels by least squares; its
@@ -15,9 +16,12 @@
 4. Secondaries: for each edge leaving an interior node of the primary path (undirected graph,
    primary edges removed), search the simple paths starting with that edge; the best-fitting
    one (most of its own pixels within 4 px of its curve, among those with a high enough inlier
-   rate) is kept when its curve is at least 20 px long.
-5. Sample each curve every 30 px of arc length with the radius of the nearest pixel of its own
-   skeleton path; radii beyond the quartile fence are replaced by the median.
+   rate) is kept when its curve is at least 20 px long; its free tip is extended along its end
+   tangent to the silhouette's end (thinning stops about a radius short).
+5. Sample the primary every 30 px of arc length, each secondary every 10 px (at least 7
+   samples), with the radius of the nearest pixel of its own skeleton path; radii beyond the
+   quartile fence are replaced by the median. Samples on a bridged gap are flagged
+   (``Curve2D.bridged``) and not lifted.
 
 Pixel coordinates are ``(u, v)`` = (column, row), as in ``recon.camera``.
 
@@ -29,18 +33,31 @@ graph paths in ``recon/curve2d/path_search.py``, step 3 in ``recon/curve2d/prima
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from recon.curve2d.path_search import SearchGraph
 from recon.curve2d.primary import PrimaryPrior, find_primary
 from recon.curve2d.secondary import find_secondaries
 from recon.curve2d.skeleton import extract_skeleton, preprocess_mask
-from recon.curve2d.types import NEWTON_ITERATIONS, Curve2DConfig, MaskCurves, make_curve2d
+from recon.curve2d.skeleton_graph import SkeletonGraph
+from recon.curve2d.types import (
+    NEWTON_ITERATIONS,
+    Curve2D,
+    Curve2DConfig,
+    MaskCurves,
+    make_curve2d,
+)
 
 __all__ = ["fit_mask_curves", "points_in_mask"]
 
 logger = logging.getLogger(__name__)
+
+# A sample this close to a bridge pixel and off the mask lies on a bridged gap (a curve passes
+# within a pixel or so of the straight bridge line it was fitted to).
+BRIDGE_SAMPLE_PX = 2.5
 
 
 def fit_mask_curves(
@@ -93,8 +110,17 @@ def fit_mask_curves(
         config.min_primary_elongation * 2.0 * float(primary.radii_px.mean())
     ):
         return no_primary
-    secondaries, more, cut = find_secondaries(sg, path, primary, config)
+    secondaries, more, cut = find_secondaries(sg, path, primary, config, clean)
+    if len(graph.bridge_uv):
+        primary = _flag_bridged(primary, graph, clean)
+        secondaries = [_flag_bridged(s, graph, clean) for s in secondaries]
     return MaskCurves(primary, secondaries, truncated or cut, evaluated + more, graph, clean)
+
+
+def _flag_bridged(curve: Curve2D, graph: SkeletonGraph, mask: np.ndarray) -> Curve2D:
+    """Flag the samples that lie off the mask next to a bridge of the skeleton."""
+    near = cKDTree(graph.bridge_uv).query(curve.samples_px)[0] <= BRIDGE_SAMPLE_PX
+    return replace(curve, bridged=near & ~points_in_mask(mask, curve.samples_px))
 
 
 def points_in_mask(mask: np.ndarray, points_uv: np.ndarray) -> np.ndarray:

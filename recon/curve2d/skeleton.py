@@ -16,9 +16,10 @@ Skeleton methods (``SkeletonConfig.method``):
 * ``"medial_axis"``: the paper's medial axis with its exact Euclidean distances, ~20-30 ms;
   spurrier, which the spur pruning handles.
 
-Two additions to the paper, both configurable: the interior is edge-replicated before thinning so
-that branches leaving the view keep a straight skeleton up to the border band, and short terminal
-spurs at junctions are pruned.
+Three additions to the paper, all configurable: the interior is edge-replicated before thinning
+so that branches leaving the view keep a straight skeleton up to the border band, short terminal
+spurs at junctions are pruned, and gaps of a few pixels between skeleton components (a side branch
+whose mask stops short of the trunk's) are bridged (``recon/curve2d/skeleton_bridge.py``).
 
 All pixel coordinates are ``(u, v)`` = (column, row), as in ``recon.camera``.
 """
@@ -26,13 +27,14 @@ All pixel coordinates are ``(u, v)`` = (column, row), as in ``recon.camera``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import cv2
 import numpy as np
 from skimage.morphology import medial_axis, skeletonize
 
+from recon.curve2d.skeleton_bridge import find_bridges
 from recon.curve2d.skeleton_graph import SkeletonGraph
 from recon.curve2d.skeleton_trace import build_graph
 from recon.frame import as_binary_mask
@@ -68,6 +70,17 @@ class SkeletonConfig:
             here (ours: enough for radii up to ~20 px).
         medial_axis_seed: Seed of skimage's random tie-breaking in ``medial_axis`` (results are
             reproducible for a given seed).
+        max_gap_px: Gaps between skeleton components up to this wide (between the silhouettes)
+            are bridged, see ``recon/curve2d/skeleton_bridge.py``; 0 disables. Ours: hand labels
+            and learned segmenters leave gaps of up to ~6 px at 320x240 where side branches
+            meet the trunk (issue 13).
+        bridge_max_angle_deg: A bridge must leave its endpoint within this of the branch's
+            outward tangent (ours: a branch points at the trunk it grows from; a second trunk
+            or a wire running alongside does not).
+        bridge_min_length_px: Shortest skeleton component that may be bridged (ours: the
+            shortest secondary, 20 px, reference.md; a lone blob has almost no skeleton).
+        bridge_tangent_px: Arc length over which an endpoint's outward tangent is measured
+            (ours: about one branch diameter, beyond the thinning's end artefacts).
     """
 
     border_px: int = 10
@@ -77,6 +90,10 @@ class SkeletonConfig:
     spur_prune_factor: float = 1.5
     border_extension_px: int = 32
     medial_axis_seed: int = 0
+    max_gap_px: float = 6.0
+    bridge_max_angle_deg: float = 30.0
+    bridge_min_length_px: float = 20.0
+    bridge_tangent_px: float = 12.0
 
     def __post_init__(self) -> None:
         require_non_negative(self, "border_px", "max_hole_area_px", finite=False)
@@ -85,6 +102,13 @@ class SkeletonConfig:
         if not 0.0 <= self.radius_offset_px < 1.0:
             raise ValueError(f"radius_offset_px must be in [0, 1), got {self.radius_offset_px}")
         require_non_negative(self, "spur_prune_factor", "border_extension_px", finite=False)
+        require_non_negative(self, "max_gap_px", "bridge_min_length_px")
+        if not 0.0 < self.bridge_max_angle_deg <= 90.0:
+            raise ValueError(
+                f"bridge_max_angle_deg must be in (0, 90], got {self.bridge_max_angle_deg}"
+            )
+        if not self.bridge_tangent_px > 0.0:
+            raise ValueError(f"bridge_tangent_px must be positive, got {self.bridge_tangent_px}")
 
 
 def preprocess_mask(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()) -> np.ndarray:
@@ -124,7 +148,9 @@ def extract_skeleton(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()
     The interior (inside the border band) is extended by ``config.border_extension_px`` pixels of
     edge replication before thinning, and the skeleton is cut back to the interior: a branch that
     leaves the view then keeps a straight skeleton up to the band instead of bending into a
-    corner of the cut (which would drag the curve fit by up to a radius).
+    corner of the cut (which would drag the curve fit by up to a radius). Small gaps between
+    skeleton components are then bridged (``SkeletonConfig.max_gap_px``) and the skeleton traced
+    again; the bridge pixels are listed in ``SkeletonGraph.bridge_uv``.
     """
     mask = as_binary_mask(mask)
     b = config.border_px
@@ -144,13 +170,54 @@ def extract_skeleton(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()
     skel[max(e + inner.shape[0] - r0, 0) :] = False
     skel[:, : max(e - c0, 0)] = False
     skel[:, max(e + inner.shape[1] - c0, 0) :] = False
+    offset_uv = (c0 - e + b, r0 - e + b)  # crop (col, row) + offset = image (u, v)
+    graph = _graph(skel, dist, offset_uv, (r0 - e, c0 - e), inner.shape, config)
+    interior_uv = (b, b, mask.shape[1] - 1 - b, mask.shape[0] - 1 - b)
+    bridges = find_bridges(
+        graph,
+        mask,
+        interior_uv,
+        config.max_gap_px,
+        config.bridge_max_angle_deg,
+        config.bridge_min_length_px,
+        config.bridge_tangent_px,
+    )
+    if not bridges:
+        return graph
+    # Draw the bridges into the skeleton (8-connected lines) and trace it again.
+    skel, dist = skel.view(np.uint8).copy(), dist.astype(np.float32, copy=True)
+    drawn = np.zeros_like(skel, dtype=bool)
+    for bridge in bridges:
+        line = np.zeros_like(skel)
+        start = (int(bridge.start_uv[0] - offset_uv[0]), int(bridge.start_uv[1] - offset_uv[1]))
+        end = (int(bridge.end_uv[0] - offset_uv[0]), int(bridge.end_uv[1] - offset_uv[1]))
+        cv2.line(line, start, end, 1, 1, cv2.LINE_8)
+        new = (line > 0) & (skel == 0)
+        skel[new] = 1
+        dist[new] = bridge.radius_px + config.radius_offset_px
+        drawn |= new
+    graph = _graph(skel.view(bool), dist, offset_uv, (r0 - e, c0 - e), inner.shape, config)
+    rows, cols = np.nonzero(drawn)
+    bridge_uv = np.stack([cols + offset_uv[0], rows + offset_uv[1]], axis=1)
+    return replace(graph, bridge_uv=bridge_uv)
+
+
+def _graph(
+    skel: np.ndarray,
+    dist: np.ndarray,
+    offset_uv: tuple[int, int],
+    offset_inner_rc: tuple[int, int],
+    inner_shape: tuple[int, int],
+    config: SkeletonConfig,
+) -> SkeletonGraph:
+    """Trace a one-pixel skeleton (crop coordinates) into a graph in image coordinates."""
     rows, cols = np.divmod(np.flatnonzero(skel), skel.shape[1])  # faster than np.nonzero
     radii = dist[rows, cols].astype(float) - config.radius_offset_px
-    pixels_uv = np.stack([cols + (c0 - e + b), rows + (r0 - e + b)], axis=1)
+    pixels_uv = np.stack([cols + offset_uv[0], rows + offset_uv[1]], axis=1)
     # Skeleton ends on the interior's outline are branches leaving the view, never spurs.
-    inner_rows, inner_cols = rows + (r0 - e), cols + (c0 - e)
-    at_cut = (inner_rows == 0) | (inner_rows == inner.shape[0] - 1)
-    at_cut |= (inner_cols == 0) | (inner_cols == inner.shape[1] - 1)
+    inner_rows, inner_cols = rows + offset_inner_rc[0], cols + offset_inner_rc[1]
+    at_cut = (inner_rows == 0) | (inner_rows == inner_shape[0] - 1)
+    at_cut |= (inner_cols == 0) | (inner_cols == inner_shape[1] - 1)
     return build_graph(skel, rows, cols, pixels_uv, radii, at_cut, config.spur_prune_factor)
 
 

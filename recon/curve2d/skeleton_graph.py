@@ -45,6 +45,8 @@ class SkeletonGraph:
         node_kind: Per node ``"endpoint"``, ``"junction"`` or ``"loop"`` (a node inserted to
             split a closed loop into two edges).
         edges: The graph's edges.
+        bridge_uv: (B, 2) int pixels (u, v) drawn to bridge gaps between skeleton components
+            (``recon/curve2d/skeleton_bridge.py``); they lie off the mask.
     """
 
     pixels_uv: np.ndarray
@@ -52,6 +54,7 @@ class SkeletonGraph:
     node_uv: np.ndarray
     node_kind: tuple[str, ...]
     edges: tuple[SkeletonEdge, ...]
+    bridge_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=int))
     _incident: tuple[tuple[int, ...], ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:

@@ -35,9 +35,16 @@ class Curve2DConfig:
         inlier_threshold_px: Skeleton pixels this close to a curve are its inliers (paper IV-B).
         score: ``"unique_rows"`` (paper IV-B: distinct inlier rows) or ``"projected_extent"``
             (authors' code: inlier length along the motion direction).
-        sample_spacing_px: Arc-length spacing of the curve samples (paper IV-A: 30 px).
+        sample_spacing_px: Arc-length spacing of the primary curve's samples (paper IV-A: 30 px).
+        secondary_sample_spacing_px: Arc-length spacing of a secondary curve's samples (ours:
+            at the paper's 30 px a 65 px side branch gets 3 samples, the one at the junction lies
+            inside the primary and the other two are too few to lift: measured, such candidates
+            never entered the model; 10 px gives a 40 px branch 4 liftable samples).
         min_samples: Fewest samples per curve; short curves are sampled more densely (ours: a
             3D curve needs a start, a middle and an end).
+        secondary_min_samples: Fewest samples per secondary curve (ours: the samples within the
+            primary's silhouette are not lifted, and a detection needs 3 lifted points; measured,
+            30 px candidates of branches seen over 800-2000 px kept only 2 at 10 px spacing).
         radius_fence_iqr: Radii beyond this many interquartile ranges outside the quartiles are
             replaced by the median (reference.md: the quartile fence, 1.5).
         min_primary_length_px: Shorter best primary curves are rejected (ours: speckle noise
@@ -50,6 +57,12 @@ class Curve2DConfig:
             threshold of its curve (ours; the paper asks for an inlier rate "high enough").
         max_secondary_bend_deg: Secondary curves whose tangent turns more than this are
             rejected (ours: a path looping back through a neighbouring side branch is a U).
+        extend_secondary_tips: Extend each secondary's skeleton path at its free tip along its
+            end tangent to the silhouette's end (ours: thinning stops about a radius short, which
+            a receding branch turns into centimetres of missing length).
+        tip_tangent_px: Arc length over which the end tangent is measured (ours).
+        tip_extension_radii: Longest tip extension, in tip radii (ours: a skeleton ends about
+            one radius inside a round or flat end; two allow for its end hook).
         max_primary_paths: Cap on DAG paths examined for the primary (ours: bounds the search
             that is exponential in skeleton loops).
         max_secondary_paths: Cap on paths examined for all secondaries together (ours).
@@ -60,13 +73,18 @@ class Curve2DConfig:
     inlier_threshold_px: float = 4.0
     score: Literal["unique_rows", "projected_extent"] = "unique_rows"
     sample_spacing_px: float = 30.0
+    secondary_sample_spacing_px: float = 10.0
     min_samples: int = 3
+    secondary_min_samples: int = 7
     radius_fence_iqr: float = 1.5
     min_primary_length_px: float = 40.0
     min_primary_elongation: float = 4.0
     min_secondary_length_px: float = 20.0
     min_secondary_inlier_fraction: float = 0.8
     max_secondary_bend_deg: float = 120.0
+    extend_secondary_tips: bool = True
+    tip_tangent_px: float = 10.0
+    tip_extension_radii: float = 2.0
     max_primary_paths: int = 100
     max_secondary_paths: int = 100
 
@@ -78,7 +96,15 @@ class Curve2DConfig:
             raise ValueError("motion_direction_uv must be non-zero")
         if self.score not in ("unique_rows", "projected_extent"):
             raise ValueError(f"score must be 'unique_rows' or 'projected_extent', got {self.score}")
-        require_positive(self, "inlier_threshold_px", "sample_spacing_px", "radius_fence_iqr")
+        require_positive(
+            self,
+            "inlier_threshold_px",
+            "sample_spacing_px",
+            "secondary_sample_spacing_px",
+            "radius_fence_iqr",
+            "tip_tangent_px",
+        )
+        require_non_negative(self, "tip_extension_radii")
         require_non_negative(
             self, "min_primary_length_px", "min_primary_elongation", "min_secondary_length_px"
         )
@@ -86,8 +112,11 @@ class Curve2DConfig:
             raise ValueError(
                 f"max_secondary_bend_deg must be in (0, 180], got {self.max_secondary_bend_deg}"
             )
-        if self.min_samples < 2:
-            raise ValueError(f"min_samples must be >= 2, got {self.min_samples}")
+        if self.min_samples < 2 or self.secondary_min_samples < 2:
+            raise ValueError(
+                "min_samples and secondary_min_samples must be >= 2, got "
+                f"{self.min_samples} and {self.secondary_min_samples}"
+            )
         if not 0.0 <= self.min_secondary_inlier_fraction <= 1.0:
             raise ValueError(
                 "min_secondary_inlier_fraction must be in [0, 1], got "
@@ -116,6 +145,9 @@ class Curve2D:
         inside_primary: (K,) True where a secondary's sample lies within the primary's silhouette
             (closer to the primary curve than its radius); skip those when triangulating. Always
             False for the primary (and when None).
+        bridged: (K,) True where a sample lies on a bridged gap of the mask (off the mask,
+            ``recon/curve2d/skeleton_bridge.py``); skip those when triangulating. All False
+            when None.
     """
 
     curve: CubicBezier
@@ -126,12 +158,20 @@ class Curve2D:
     pixel_path: np.ndarray
     sample_t: np.ndarray | None = None
     inside_primary: np.ndarray | None = None
+    bridged: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.sample_t is None:
             object.__setattr__(self, "sample_t", self.curve.closest_params(self.samples_px)[0])
         if self.inside_primary is None:
             object.__setattr__(self, "inside_primary", np.zeros(len(self.samples_px), dtype=bool))
+        if self.bridged is None:
+            object.__setattr__(self, "bridged", np.zeros(len(self.samples_px), dtype=bool))
+
+    @property
+    def liftable(self) -> np.ndarray:
+        """(K,) True for the samples to triangulate: on the mask, outside the primary."""
+        return ~(np.asarray(self.inside_primary, bool) | np.asarray(self.bridged, bool))
 
     @property
     def length_px(self) -> float:
@@ -178,10 +218,25 @@ def make_curve2d(
     score: float,
     inlier_fraction: float,
     config: Curve2DConfig,
+    spacing_px: float | None = None,
+    min_samples: int | None = None,
 ) -> Curve2D:
-    """Sample a fitted curve and attach radii from its own skeleton path."""
+    """Sample a fitted curve and attach radii from its own skeleton path.
+
+    Args:
+        curve: The fitted curve.
+        pixels: (P, 2) skeleton pixels it was fitted to, in curve order.
+        radii: (P,) radius of each pixel.
+        score: Search score.
+        inlier_fraction: Fraction of ``pixels`` within the inlier threshold.
+        config: Sampling and radius options.
+        spacing_px: Arc-length sample spacing (default ``config.sample_spacing_px``).
+        min_samples: Fewest samples (default ``config.min_samples``).
+    """
+    spacing = config.sample_spacing_px if spacing_px is None else spacing_px
+    fewest = config.min_samples if min_samples is None else min_samples
     length = curve.length()
-    n_points = max(config.min_samples, math.ceil(length / config.sample_spacing_px) + 1)
+    n_points = max(fewest, math.ceil(length / spacing) + 1)
     samples, t = curve.resample_by_count(n_points)
     sq = ((samples[:, None, :] - pixels[None, :, :]) ** 2).sum(axis=2)
     sample_radii = _robust_radii(radii[np.argmin(sq, axis=1)], config.radius_fence_iqr)

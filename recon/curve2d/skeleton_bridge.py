@@ -1,0 +1,226 @@
+"""Bridging small gaps in a branch skeleton (beyond the paper, for real masks).
+
+Hand labels and learned segmenters often leave a gap of a few pixels where a side branch meets
+the trunk, or break a thin branch in two. Thinning then gives separate skeleton components: no
+junction, so no secondary candidate (paper IV-B finds candidates only at junctions of the primary
+path), or a primary cut short. :func:`find_bridges` proposes straight bridges from a skeleton
+endpoint to the nearest skeleton pixel of another component when
+
+* a ray from the endpoint crosses at most ``max_gap_px`` of background between the two
+  silhouettes,
+* the branch ending there points at the other component (its outward tangent within
+  ``max_angle_deg`` of the bridge), and
+* the endpoint's component is long enough to be a branch (``min_length_px`` and four radii),
+  and its terminal edge holds a straight run to take the tangent on: a lone blob beside the
+  trunk, or speckle, has almost no skeleton and is never bridged.
+
+Bridges are taken shortest gap first, at most one per pair of components (no loops).
+``recon/curve2d/skeleton.py`` draws them into the skeleton before building the graph; the
+bridge pixels lie off the mask, and samples there are not lifted (``recon/curve2d/fit.py``).
+
+All pixel coordinates are ``(u, v)`` = (column, row), as in ``recon.camera``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from recon.curve2d.path_search import component_reach
+from recon.curve2d.skeleton_graph import SkeletonEdge, SkeletonGraph
+
+__all__ = ["Bridge", "find_bridges"]
+
+_RAYS = 7  # rays fanned over the allowed angle (ours: ~10 deg apart for the default 30 deg)
+_RAY_STEP_PX = 0.5  # ray marching step: below a pixel, no pixel skipped
+_RAY_MARGIN_PX = 2.0  # rounding slack at both silhouette edges
+# A bridged component's skeleton is at least this many radii long (ours: two diameters; a blob's
+# skeleton is shorter than its diameter).
+_MIN_ELONGATION = 4.0
+
+
+@dataclass(frozen=True)
+class Bridge:
+    """A straight bridge over a gap.
+
+    Attributes:
+        start_uv: (2,) int skeleton pixel (u, v) the bridge leaves from: one radius back from
+            an endpoint, past the thinning's end hook.
+        end_uv: (2,) int skeleton pixel (u, v) of the other component it reaches.
+        radius_px: Radius given to the bridge pixels (the endpoint's).
+        gap_px: Estimated gap between the two silhouettes, in pixels.
+    """
+
+    start_uv: np.ndarray
+    end_uv: np.ndarray
+    radius_px: float
+    gap_px: float
+
+
+def find_bridges(
+    graph: SkeletonGraph,
+    mask: np.ndarray,
+    interior_uv: tuple[int, int, int, int],
+    max_gap_px: float,
+    max_angle_deg: float,
+    min_length_px: float,
+    tangent_px: float,
+) -> list[Bridge]:
+    """Bridges over small gaps between skeleton components (see the module docstring).
+
+    The gap is measured in the mask: rays from a skeleton endpoint, within ``max_angle_deg`` of
+    its outward tangent, leave the branch's own silhouette, cross the background and must enter
+    another mask component within ``max_gap_px``; the bridge goes to the other component's
+    skeleton pixel nearest to where the shortest-gap ray enters it.
+
+    Args:
+        graph: The skeleton graph.
+        mask: (H, W) bool clean mask the skeleton came from.
+        interior_uv: (u_min, v_min, u_max, v_max) of the interior: endpoints on its outline are
+            branches leaving the view, never bridged.
+        max_gap_px: Largest gap between silhouettes to bridge; 0 disables bridging.
+        max_angle_deg: Largest angle between an endpoint's outward tangent and its bridge.
+        min_length_px: Shortest skeleton (polyline length of its component) that may be bridged.
+        tangent_px: Arc length over which the outward tangent at an endpoint is measured.
+
+    Returns:
+        The bridges to draw, shortest gap first.
+    """
+    if max_gap_px <= 0 or len(graph.edges) < 2:
+        return []
+    component, _ = component_reach(graph)
+    edge_component = component[[e.start for e in graph.edges]]
+    if len(np.unique(edge_component)) < 2:
+        return []
+    lengths = np.zeros(graph.n_nodes)
+    np.add.at(lengths, edge_component, [e.length_px for e in graph.edges])
+    n_labels, labels = cv2.connectedComponents(mask.view(np.uint8), connectivity=8)
+    if n_labels < 3:  # background and one silhouette: nothing to bridge
+        return []
+    pixels = np.concatenate([e.pixels_uv for e in graph.edges])
+    owner = np.repeat(edge_component, [len(e.pixels_uv) for e in graph.edges])
+    pixel_label = labels[pixels[:, 1], pixels[:, 0]]
+    # Never bridge into the last radius of a skeleton end: thinning hooks it into a corner of a
+    # cut end; the bridge goes past the hook, which is then pruned as a spur.
+    targetable = ~np.concatenate([_end_zone(graph, e) for e in graph.edges])
+    u_min, v_min, u_max, v_max = interior_uv
+    angles = np.radians(np.linspace(-max_angle_deg, max_angle_deg, _RAYS))
+    proposals: list[tuple[float, int, int, Bridge]] = []
+    for edge in graph.edges:
+        for node, path, path_radii in (
+            (edge.start, edge.pixels_uv, edge.radii_px),
+            (edge.end, edge.pixels_uv[::-1], edge.radii_px[::-1]),
+        ):
+            if graph.node_kind[node] != "endpoint" or len(graph.incident_edges(node)) != 1:
+                continue
+            own = component[node]
+            end = path[0]
+            if lengths[own] < min_length_px:
+                continue
+            if end[0] <= u_min or end[0] >= u_max or end[1] <= v_min or end[1] >= v_max:
+                continue
+            own_label = labels[end[1], end[0]]
+            radius = float(np.median(path_radii[: max(2, int(tangent_px))]))
+            if edge.length_px < radius + tangent_px or lengths[own] < _MIN_ELONGATION * radius:
+                continue  # no straight run to take a tangent on, or blob-like: not a branch end
+            outward = _outward_tangent(path.astype(float), radius, tangent_px)
+            if outward is None:
+                continue
+            hit = _shortest_gap_ray(labels, end, outward, angles, own_label, radius, max_gap_px)
+            if hit is None:
+                continue
+            gap, entry, label = hit
+            on_label = np.flatnonzero((pixel_label == label) & (owner != own) & targetable)
+            if len(on_label) == 0:
+                continue
+            target = on_label[np.argmin(np.linalg.norm(pixels[on_label] - entry, axis=1))]
+            start = _pixel_at_arc(path, radius)
+            bridge = Bridge(start.astype(int), pixels[target].astype(int), radius, gap)
+            proposals.append((gap, int(own), int(owner[target]), bridge))
+    proposals.sort(key=lambda p: (p[0], p[1], p[2]))
+    parent = {int(c): int(c) for c in np.unique(component)}
+
+    def root(c: int) -> int:
+        while parent[c] != c:
+            parent[c] = parent[parent[c]]
+            c = parent[c]
+        return c
+
+    bridges = []
+    for _, a, b, bridge in proposals:
+        ra, rb = root(a), root(b)
+        if ra != rb:
+            parent[ra] = rb
+            bridges.append(bridge)
+    return bridges
+
+
+def _shortest_gap_ray(
+    labels: np.ndarray,
+    start: np.ndarray,
+    outward: np.ndarray,
+    angles: np.ndarray,
+    own_label: int,
+    radius_px: float,
+    max_gap_px: float,
+) -> tuple[float, np.ndarray, int] | None:
+    """March rays from ``start`` at ``angles`` about ``outward``: (gap, entry pixel, label) of
+    the ray that enters another mask component after the shortest run of background, if any
+    run is at most ``max_gap_px`` long."""
+    h, w = labels.shape
+    # Out of its own silhouette (up to ~2 radii: a skeleton may end well inside a cut end),
+    # across the gap, into the other one.
+    reach = 2.0 * radius_px + max_gap_px + _RAY_MARGIN_PX
+    steps = np.arange(0.0, reach, _RAY_STEP_PX)
+    cos, sin = np.cos(angles), np.sin(angles)
+    dirs = np.stack([cos * outward[0] - sin * outward[1], sin * outward[0] + cos * outward[1]], 1)
+    pts = start[None, None, :] + steps[None, :, None] * dirs[:, None, :]  # (R, S, 2)
+    uv = np.rint(pts).astype(int)
+    inside = (uv[..., 0] >= 0) & (uv[..., 0] < w) & (uv[..., 1] >= 0) & (uv[..., 1] < h)
+    lab = np.where(inside, labels[np.clip(uv[..., 1], 0, h - 1), np.clip(uv[..., 0], 0, w - 1)], 0)
+    best = None
+    for r in range(len(angles)):
+        ray = lab[r]
+        out = np.flatnonzero(ray != own_label)
+        if len(out) == 0:
+            continue
+        first_out = out[0]
+        other = np.flatnonzero((ray[first_out:] != 0) & (ray[first_out:] != own_label))
+        if len(other) == 0:
+            continue
+        k = first_out + other[0]
+        if np.any(ray[first_out:k] == own_label):  # re-entered itself: not a straight gap
+            continue
+        gap = float(steps[k] - steps[first_out])
+        if gap <= max_gap_px and (best is None or gap < best[0]):
+            best = (gap, pts[r, k], int(ray[k]))
+    return best
+
+
+def _end_zone(graph: SkeletonGraph, edge: SkeletonEdge) -> np.ndarray:
+    """(P,) True for an edge's pixels within one end radius of a skeleton endpoint."""
+    zone = np.zeros(len(edge.pixels_uv), dtype=bool)
+    steps = np.linalg.norm(np.diff(edge.pixels_uv.astype(float), axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    if graph.node_kind[edge.start] == "endpoint":
+        zone |= arc <= edge.radii_px[0] + float(np.median(edge.radii_px))
+    if graph.node_kind[edge.end] == "endpoint":
+        zone |= arc[-1] - arc <= edge.radii_px[-1] + float(np.median(edge.radii_px))
+    return zone
+
+
+def _pixel_at_arc(path: np.ndarray, arc_px: float) -> np.ndarray:
+    """The pixel of ``path`` about ``arc_px`` of polyline length from ``path[0]``."""
+    steps = np.linalg.norm(np.diff(path.astype(float), axis=0), axis=1)
+    arc = np.concatenate([[0.0], np.cumsum(steps)])
+    return path[min(int(np.searchsorted(arc, arc_px)), len(path) - 1)]
+
+
+def _outward_tangent(path: np.ndarray, skip_px: float, tangent_px: float) -> np.ndarray | None:
+    """Unit direction out of the skeleton at ``path[0]``, measured between the pixels
+    ``skip_px`` and ``skip_px + tangent_px`` back (past the thinning's end hooks)."""
+    direction = _pixel_at_arc(path, skip_px) - _pixel_at_arc(path, skip_px + tangent_px)
+    norm = float(np.linalg.norm(direction))
+    return direction / norm if norm > 0 else None

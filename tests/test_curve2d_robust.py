@@ -1,0 +1,195 @@
+"""2D curve fitting on masks as real segmenters draw them (issue 13, part 3): side branches cut
+off the trunk by small gaps, eroded and ragged borders, thin and broken masks, a second trunk in
+view and wires crossing. Synthetic masks at 320x240, drawn with the helpers of test_curve2d."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from test_curve2d import PRIMARY, PRIMARY_HALF_WIDTH, SIDE_HALF_WIDTH, H, W, _dense, _segment, _tube
+
+from recon.curve2d.fit import fit_mask_curves
+from recon.curve2d.primary import PrimaryPrior
+from recon.curve2d.skeleton import SkeletonConfig
+from recon.curve2d.types import Curve2DConfig
+from recon.geometry.bezier import CubicBezier
+
+_GRID = np.stack(np.meshgrid(np.arange(W), np.arange(H)), axis=-1).reshape(-1, 2).astype(float)
+_PRIMARY_DENSE = _dense(PRIMARY)
+# Distance of every pixel centre to the primary's centreline.
+_TO_PRIMARY = cKDTree(_PRIMARY_DENSE).query(_GRID)[0].reshape(H, W)
+_JUNCTION_T = 0.5
+_SIDE_ANGLE_DEG = -20.0  # up and to the right in the image
+_SIDE_LENGTH = 75.0
+
+
+def _primary_mask(half_width: float = PRIMARY_HALF_WIDTH) -> np.ndarray:
+    return _TO_PRIMARY <= half_width
+
+
+def _side(angle_deg: float = _SIDE_ANGLE_DEG, t: float = _JUNCTION_T) -> np.ndarray:
+    junction = PRIMARY(np.array([t]))[0]
+    return _segment(junction, angle_deg, _SIDE_LENGTH)
+
+
+def _gapped_side(gap_px: float, angle_deg: float = _SIDE_ANGLE_DEG) -> np.ndarray:
+    """A side branch whose mask stops ``gap_px`` short of the trunk's silhouette."""
+    return _tube(_side(angle_deg), SIDE_HALF_WIDTH) & (_TO_PRIMARY > PRIMARY_HALF_WIDTH + gap_px)
+
+
+def _matching_secondary(result, segment: np.ndarray):
+    """The fitted secondary ending nearest the drawn segment's tip, if it runs along it."""
+    tip = segment[-1]
+    for secondary in result.secondaries:
+        end = secondary.samples_px[-1]
+        drawn = (segment[-1] - segment[0]) / np.linalg.norm(segment[-1] - segment[0])
+        fitted = end - secondary.samples_px[0]
+        fitted /= np.linalg.norm(fitted)
+        if np.linalg.norm(end - tip) < SIDE_HALF_WIDTH + 5.0 and drawn @ fitted > np.cos(
+            np.radians(15.0)
+        ):
+            return secondary
+    return None
+
+
+def _primary_error_px(result) -> float:
+    return float(cKDTree(_PRIMARY_DENSE).query(result.primary.samples_px)[0].max())
+
+
+@pytest.mark.parametrize("gap_px", [2, 4, 6])
+def test_side_branch_is_found_across_a_junction_gap(gap_px: int) -> None:
+    mask = _primary_mask() | _gapped_side(gap_px)
+    assert not np.any(
+        mask
+        & _tube(_side(), SIDE_HALF_WIDTH)
+        & ~_primary_mask()
+        & (_TO_PRIMARY <= PRIMARY_HALF_WIDTH + gap_px)
+    )  # the gap is really there
+    result = fit_mask_curves(mask)
+    assert result.primary is not None and _primary_error_px(result) < 2.0
+    secondary = _matching_secondary(result, _side())
+    assert secondary is not None, f"no side branch across a {gap_px} px gap"
+    # It starts at the junction on the primary's axis, its junction samples are skipped when
+    # lifting, and every sample it lifts lies on the mask.
+    assert np.linalg.norm(secondary.samples_px[0] - _side()[0]) < PRIMARY_HALF_WIDTH
+    lifted = secondary.samples_px[secondary.liftable]
+    assert len(lifted) >= 5
+    assert mask[np.rint(lifted[:, 1]).astype(int), np.rint(lifted[:, 0]).astype(int)].all()
+
+
+def test_gaps_wider_than_the_limit_are_not_bridged() -> None:
+    mask = _primary_mask() | _gapped_side(12)
+    result = fit_mask_curves(mask)
+    assert _matching_secondary(result, _side()) is None
+    disabled = Curve2DConfig(skeleton=SkeletonConfig(max_gap_px=0.0))
+    assert (
+        _matching_secondary(fit_mask_curves(_primary_mask() | _gapped_side(4), disabled), _side())
+        is None
+    )
+
+
+@pytest.mark.parametrize("gap_px", [3, 6])
+@pytest.mark.parametrize("blob_radius_px", [5.0, 9.0])
+def test_no_side_branch_is_invented_for_a_lone_blob(gap_px: int, blob_radius_px: float) -> None:
+    junction = PRIMARY(np.array([_JUNCTION_T]))[0]
+    centre = junction + np.array([PRIMARY_HALF_WIDTH + gap_px + blob_radius_px, 0.0])
+    blob = (np.linalg.norm(_GRID - centre, axis=1) <= blob_radius_px).reshape(H, W)
+    result = fit_mask_curves(_primary_mask() | blob)
+    assert result.primary is not None and _primary_error_px(result) < 2.0
+    assert result.secondaries == []
+    assert len(result.skeleton.bridge_uv) == 0
+
+
+def test_a_branch_running_alongside_the_trunk_is_not_bridged() -> None:
+    """A second, parallel stem 5 px beside the trunk is not a side branch of it."""
+    offset = PRIMARY.control_points + np.array([PRIMARY_HALF_WIDTH + 5 + 4.0, 0.0])
+    stem = _tube(_dense(CubicBezier(offset)), 4.0) & (_GRID[:, 1].reshape(H, W) > 60)
+    result = fit_mask_curves(_primary_mask() | (stem & ~_primary_mask()))
+    assert result.primary is not None and _primary_error_px(result) < 2.5
+    assert result.secondaries == []
+
+
+def _ragged(mask: np.ndarray, amplitude_px: int, seed: int) -> np.ndarray:
+    """Erode or dilate the border by up to ``amplitude_px`` in random patches (hand labels)."""
+    rng = np.random.default_rng(seed)
+    noise = cv2.GaussianBlur(rng.standard_normal((H, W)), (0, 0), 3.0)
+    noise /= np.abs(noise).max()
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * amplitude_px + 1,) * 2)
+    grown = cv2.dilate(mask.view(np.uint8), kernel).astype(bool)
+    shrunk = cv2.erode(mask.view(np.uint8), kernel).astype(bool)
+    return np.where(noise > 0.3, grown, np.where(noise < -0.3, shrunk, mask))
+
+
+def _tree_mask() -> tuple[np.ndarray, list[np.ndarray]]:
+    sides = [_side(-20.0, 0.3), _side(200.0, 0.55), _side(-35.0, 0.75)]
+    mask = _primary_mask()
+    for segment in sides:
+        mask |= _tube(segment, SIDE_HALF_WIDTH)
+    return mask, sides
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_ragged_and_eroded_borders_keep_primary_and_side_branches(seed: int) -> None:
+    mask, sides = _tree_mask()
+    for ragged in (_ragged(mask, 2, seed), cv2.erode(mask.view(np.uint8), np.ones((3, 3))) > 0):
+        result = fit_mask_curves(ragged)
+        assert result.primary is not None and _primary_error_px(result) < 3.0
+        found = [_matching_secondary(result, s) for s in sides]
+        assert all(f is not None for f in found)
+        # Ragged borders make skeleton spurs, not extra side branches.
+        assert len(result.secondaries) <= len(sides) + 1
+
+
+def test_thin_mask_is_fitted() -> None:
+    mask = _primary_mask(2.5) | _tube(_side(), 2.0)
+    result = fit_mask_curves(mask)
+    assert result.primary is not None and _primary_error_px(result) < 2.0
+    assert _matching_secondary(result, _side()) is not None
+
+
+@pytest.mark.parametrize("gap_px", [2, 4])
+def test_broken_trunk_is_one_primary(gap_px: int) -> None:
+    """A trunk mask broken across by a small gap still gives one primary spanning the view."""
+    rows = _GRID[:, 1].reshape(H, W)
+    mask = _primary_mask() & ~((rows >= 120) & (rows < 120 + gap_px))
+    result = fit_mask_curves(mask)
+    assert result.primary is not None and _primary_error_px(result) < 2.0
+    assert result.primary.samples_px[0, 1] > H - 15 and result.primary.samples_px[-1, 1] < 15
+    # The samples on the gap are not lifted.
+    lifted = result.primary.samples_px[result.primary.liftable]
+    assert mask[np.rint(lifted[:, 1]).astype(int), np.rint(lifted[:, 0]).astype(int)].all()
+
+
+def test_two_trunks_in_view_give_one_primary_with_its_side_branches() -> None:
+    """With the model's trunk as prior (every iteration after the first), the followed trunk
+    stays the primary; without one, either trunk may be taken, never a mix, and the other trunk
+    never becomes a side branch."""
+    mask, sides = _tree_mask()
+    other = CubicBezier(np.array([[280.0, 265.0], [275.0, 170.0], [290.0, 75.0], [285.0, -25.0]]))
+    other_dense = _dense(other)
+    both = mask | _tube(other_dense, 7.0)
+    prior = PrimaryPrior(PRIMARY(np.linspace(0.05, 0.95, 20)), 4.0, 0.6)
+    result = fit_mask_curves(both, prior=prior)
+    assert result.primary is not None and _primary_error_px(result) < 2.0
+    assert all(_matching_secondary(result, s) is not None for s in sides)
+    samples = np.concatenate([s.samples_px for s in result.secondaries])
+    assert cKDTree(other_dense).query(samples)[0].min() > 7.0
+    unguided = fit_mask_curves(both)
+    to_first = cKDTree(_PRIMARY_DENSE).query(unguided.primary.samples_px)[0].max()
+    to_other = cKDTree(other_dense).query(unguided.primary.samples_px)[0].max()
+    assert min(to_first, to_other) < 2.0
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, -10.0, -25.0])
+def test_wire_crossing_the_trunk_leaves_the_primary_on_the_trunk(angle_deg: float) -> None:
+    """A thin wire across the trunk, between side branches (one crossing a side branch takes
+    its candidate over: a known limit)."""
+    mask, sides = _tree_mask()
+    centre = PRIMARY(np.array([0.45]))[0]
+    direction = np.array([np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))])
+    wire = centre + np.linspace(-400.0, 400.0, 3201)[:, None] * direction
+    result = fit_mask_curves(mask | _tube(wire, 1.5))
+    assert result.primary is not None and _primary_error_px(result) < 2.0
+    assert all(_matching_secondary(result, s) is not None for s in sides)
