@@ -375,7 +375,7 @@ def test_cli_outputs_on_real_scans(tmp_path: Path, capsys) -> None:
     assert "4 trials run, 0 loaded" in stdout and "3.5 (4.0)" in stdout  # the paper beside ours
 
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary) == {"policies", "config"}
+    assert set(summary) == {"policies", "paired", "config"}
     assert list(summary["policies"]) == list(POLICIES)  # the CLI specs, in CLI order
     for entry in summary["policies"].values():
         assert set(entry) == SUMMARY_KEYS and entry["trials"] == 2
