@@ -24,18 +24,20 @@ import numpy as np
 from tqdm import tqdm
 
 from branch_gym.segmenter_training.config import GenerateConfig, TrainConfig
+from branch_gym.segmenter_training.evaluate import EvaluateConfig, evaluate_segmenters
+from branch_gym.segmenter_training.generate import (
+    generate_shard,
+    shard_count,
+    shard_path,
+    write_shard,
+)
+from branch_gym.segmenter_training.train import export_checkpoint, train
+from recon.segmentation import load_segmenter
 
 logger = logging.getLogger("branch_gym.segmenter_training")
 
 
 def _generate(args: argparse.Namespace) -> None:
-    from branch_gym.segmenter_training.generate import (
-        generate_shard,
-        shard_count,
-        shard_path,
-        write_shard,
-    )
-
     config = GenerateConfig(trees=args.trees, pairs_per_tree=args.pairs_per_tree,
                             trees_per_shard=args.trees_per_shard)  # fmt: skip
     out = Path(args.out)
@@ -49,7 +51,6 @@ def _generate(args: argparse.Namespace) -> None:
 
 
 def _train(args: argparse.Namespace) -> None:
-    from branch_gym.segmenter_training.train import train
 
     base = TrainConfig()
     net = replace(base.net, use_flow=args.flow)
@@ -68,9 +69,6 @@ def _train(args: argparse.Namespace) -> None:
 def _evaluate(args: argparse.Namespace) -> None:
     import cv2
     import torch
-
-    from branch_gym.segmenter_training.evaluate import EvaluateConfig, evaluate_segmenters
-    from recon.segmentation import load_segmenter
 
     torch.set_num_threads(1)  # one core, as the segment_ms target
     cv2.setNumThreads(1)
@@ -94,7 +92,6 @@ def _evaluate(args: argparse.Namespace) -> None:
 
 
 def _export(args: argparse.Namespace) -> None:
-    from branch_gym.segmenter_training.train import export_checkpoint
 
     step = export_checkpoint(Path(args.run), Path(args.out))
     tqdm.write(f"exported step {step} of {args.run} to {args.out}")
