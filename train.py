@@ -6,7 +6,7 @@ Usage::
         [--resume] [--tracker lk|oracle] [--segmenter gt|noisy:mild|...] [--tree paper] \\
         [--end-height 0.75] [--speed 0.025] [--checkpoint-every 10000] [--eval-every 10000] \\
         [--eval-trees 10] [--normalize] [--n-steps 256] [--batch-size 64] [--n-epochs 10] \\
-        [--learning-rate 3e-4] [--log-std-init 0]
+        [--learning-rate 3e-4] [--log-std-init 0] [--recurrent]
 
 OUT then holds config.json, TensorBoard logs (tensorboard --logdir OUT/tb), checkpoints/,
 best_model.zip, evaluations.jsonl and final_model.zip. Evaluate a model with
@@ -55,6 +55,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-every", type=int, metavar="STEPS", help="evaluation period; 0 off")
     parser.add_argument("--eval-trees", type=int, metavar="N", help="held-out trees per evaluation")
     parser.add_argument("--normalize", action="store_true", help="VecNormalize obs vector + reward")
+    parser.add_argument(
+        "--recurrent", action="store_true", help="sb3-contrib RecurrentPPO with an LSTM policy"
+    )
     parser.add_argument("--n-steps", type=int, help="PPO steps per env per rollout")
     parser.add_argument("--batch-size", type=int, help="PPO minibatch size")
     parser.add_argument("--n-epochs", type=int, help="PPO epochs per rollout")
@@ -65,6 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--first-action-logit", type=float, help="initial logit bonus of discrete action 0 (hold)"
     )
     parser.add_argument("--gamma", type=float, help="PPO discount")
+    parser.add_argument(
+        "--cnn-output-dim", type=int, help="image features of a Dict observation (default 256)"
+    )
     parser.add_argument(
         "--time-penalty", type=float, metavar="PER_S", help="reward per second of scan time"
     )
@@ -91,6 +97,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "first_action_logit_init": args.first_action_logit,
         "gamma": args.gamma,
         "target_kl": args.target_kl,
+        "cnn_output_dim": args.cnn_output_dim,
     }
     run = {
         "tracker": args.tracker,
@@ -109,6 +116,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         n_envs=args.n_envs,
         seed=args.seed,
         normalize=args.normalize,
+        recurrent=args.recurrent,
         render_tracking_frames=not args.pose_only_tracking_frames,
         ppo=PPOConfig(**{k: v for k, v in ppo.items() if v is not None}),
         **{k: v for k, v in run.items() if v is not None},

@@ -1,7 +1,10 @@
 """Loading trained policies: SB3 PPO models as agents with ``predict``, clear errors on bad files.
 
-:func:`load_policy` returns a :class:`PolicyAgent`: the model's ``predict(obs, state,
-episode_start, deterministic)`` with ``deterministic=True`` by default (evaluation must not
+A model file holds a stable-baselines3 ``PPO`` or an sb3-contrib ``RecurrentPPO`` (an LSTM
+policy, ``TrainConfig.recurrent``); :func:`load_model` tells them apart by the policy class
+recorded in the file. :func:`load_policy` returns a :class:`PolicyAgent`: the model's
+``predict(obs, state, episode_start, deterministic)`` (the LSTM state of a recurrent model is
+returned and passed back in) with ``deterministic=True`` by default (evaluation must not
 sample), the ``VecNormalize`` statistics saved beside the model applied to the observation, and,
 for a model trained on ``BranchScanFlat-v0`` acting in a Dict-observation env, the observation
 flattened the way the env flattens it. ``agents.factory.make_agent("ppo:PATH", env)`` uses it.
@@ -9,9 +12,11 @@ flattened the way the env flattens it. ``agents.factory.make_agent("ppo:PATH", e
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import pickle
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +40,8 @@ PPO_SPEC_PREFIX = "ppo:"  # policy spec "ppo:PATH" (eval.py --policies, make_age
 PRICE_SEPARATOR = "@"
 # The VecNormalize statistics a model was trained with lie beside it: MODEL_vecnormalize.pkl.
 NORMALIZER_SUFFIX = "_vecnormalize.pkl"
+# The module of sb3-contrib's recurrent policies, as a model file's policy class records it.
+RECURRENT_POLICY_MODULE = "sb3_contrib.common.recurrent."
 
 
 def normalizer_path(model_path: str | Path) -> Path:
@@ -47,29 +54,55 @@ class ModelFileError(ValueError):
     """A model (or its normalisation statistics) file exists but cannot be loaded."""
 
 
+def algorithm_class(recurrent: bool) -> type:
+    """The algorithm: stable-baselines3's ``PPO``, or sb3-contrib's ``RecurrentPPO`` (LSTM)."""
+    if recurrent:
+        from sb3_contrib import RecurrentPPO
+
+        return RecurrentPPO
+    from stable_baselines3 import PPO
+
+    return PPO
+
+
+def is_recurrent_file(path: str | Path) -> bool:
+    """Whether a model file holds a ``RecurrentPPO`` model.
+
+    Read from the module of the policy class in the zip's ``data`` JSON, without unpickling
+    anything: ``PPO.load`` would also load a recurrent model, as a PPO that cannot train it.
+
+    Raises:
+        zipfile.BadZipFile, KeyError, ValueError: not an SB3 model file.
+    """
+    with zipfile.ZipFile(path) as archive:
+        data = json.loads(archive.read("data"))
+    module = data.get("policy_class", {}).get("__module__", "")
+    return str(module).startswith(RECURRENT_POLICY_MODULE)
+
+
 def load_model(path: str | Path, env: Any = None, **kwargs: Any) -> Any:
-    """Load a stable-baselines3 PPO model (on the CPU).
+    """Load a stable-baselines3 PPO or sb3-contrib RecurrentPPO model (on the CPU).
 
     Args:
         path: The model's ``.zip`` file.
-        env: Passed to ``PPO.load`` (training envs when resuming).
-        **kwargs: More ``PPO.load`` arguments (e.g. ``tensorboard_log``).
+        env: Passed to ``load`` (training envs when resuming).
+        **kwargs: More ``load`` arguments (e.g. ``tensorboard_log``).
 
     Raises:
         FileNotFoundError: no such file (named).
-        ModelFileError: the file is not a readable PPO model (named, with the cause).
+        ModelFileError: the file is not a readable PPO or RecurrentPPO model (named, with the
+            cause).
     """
-    from stable_baselines3 import PPO
-
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"model file {path} does not exist")
     try:
-        return PPO.load(path, env=env, device="cpu", **kwargs)
+        algorithm = algorithm_class(is_recurrent_file(path))
+        return algorithm.load(path, env=env, device="cpu", **kwargs)
     except Exception as exc:  # SB3 raises ValueError, KeyError, pickle and zip errors
         raise ModelFileError(
-            f"model file {path} is not a readable stable-baselines3 PPO model "
-            f"({type(exc).__name__}: {exc})"
+            f"model file {path} is not a readable stable-baselines3 PPO or sb3-contrib "
+            f"RecurrentPPO model ({type(exc).__name__}: {exc})"
         ) from exc
 
 
@@ -119,18 +152,25 @@ class PolicyAgent:
         episode_start: np.ndarray | bool | None = None,
         deterministic: bool = True,
     ) -> tuple[np.ndarray, Any]:
-        """The model's action(s) for one observation or a batch (deterministic by default)."""
+        """The model's action(s) for one observation or a batch (deterministic by default).
+
+        Returns:
+            The action(s) and the model's next state: a recurrent model's LSTM state, to pass
+            back with the next observation (None for PPO).
+        """
         if self.flatten_dict and isinstance(observation, dict):
             observation = flatten_observation(observation)
         if self.normalizer is not None:
             observation = self.normalizer.normalize_obs(observation)
         if episode_start is not None:
             episode_start = np.asarray(episode_start, bool).reshape(-1)
-        return self.model.predict(observation, state, episode_start, deterministic)
+        return self.model.predict(
+            observation, state=state, episode_start=episode_start, deterministic=deterministic
+        )
 
 
 def load_policy(path: str | Path, env: Any = None) -> PolicyAgent:
-    """A trained PPO model as an agent; ``PATH_vecnormalize.pkl`` beside it is applied if present.
+    """A trained (Recurrent)PPO model as an agent; ``PATH_vecnormalize.pkl`` beside it applies.
 
     Args:
         path: The model's ``.zip`` file (e.g. ``runs/NAME/final_model.zip``).

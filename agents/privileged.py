@@ -23,7 +23,7 @@ import numpy as np
 from agents.baselines import BaselineAgent
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG
 from branch_gym.sim.validation import require_positive
-from recon.metrics import evaluate
+from recon.metrics import TruthIndex, evaluate, index_truth
 
 SPEC_KIND = "privileged"
 
@@ -72,6 +72,7 @@ class PrivilegedAgent(BaselineAgent):
         super().__init__(**action_settings)
         self.session = session
         self.config = config or PrivilegedConfig()
+        self._truth: tuple[Any, TruthIndex] | None = None  # (tree, its index), once per tree
         too_far = [a for a in self.config.candidate_angles_deg if abs(a) > self.theta_max_deg]
         if too_far:
             raise ValueError(
@@ -115,7 +116,12 @@ class PrivilegedAgent(BaselineAgent):
         tree = session.tree
         if tree is None:
             return np.zeros(0)
-        metrics = evaluate(session.model, tree, scanned_top_z_m=session.camera_height_m)
+        if self._truth is None or self._truth[0] is not tree:
+            self._truth = (tree, index_truth(tree))
+        metrics = evaluate(
+            session.model, tree, scanned_top_z_m=session.camera_height_m,
+            truth_index=self._truth[1],
+        )  # fmt: skip
         matched = {j for j, _ in metrics.matches}
         half_band_m = config.view_band_fov * session.vertical_fov_m
         headings = []

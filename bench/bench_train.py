@@ -66,7 +66,7 @@ def train_steps_per_s_fast(n_steps: int = FAST_N_STEPS) -> float:
     try:
         model = PPO(
             policy_class(venv.observation_space), venv, seed=SEED, device="cpu", verbose=0,
-            **ppo.sb3_kwargs(),
+            **ppo.sb3_kwargs(venv.observation_space),
         )  # fmt: skip
         start = time.perf_counter()
         model.learn(total_timesteps=steps)
@@ -100,7 +100,7 @@ def _train_steps_per_s(tracker: str, n_steps: int = BENCH_N_STEPS, **recipe: obj
             seed=SEED,
             device="cpu",
             verbose=0,
-            **ppo.sb3_kwargs(),
+            **ppo.sb3_kwargs(venv.observation_space),
         )
         apply_first_action_logit(model, hold_logit)
         start = time.perf_counter()

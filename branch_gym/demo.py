@@ -1,8 +1,9 @@
 """``make demo``: scan a handful of simulated trees, print the reconstruction table, write figures.
 
-Runs the paper's no-rotation baseline, its periodic rotation and the shipped PPO policy
-(``models/ppo_trigger.zip``) on a few trees with real image tracking (Lucas-Kanade on the rendered
-bark) and clean masks, prints the table next to the paper's Table I, and writes
+Runs the paper's no-rotation baseline, two of its periodic settings, the privileged bound (it
+reads the ground truth) and the shipped price-conditioned PPO policy (``models/ppo_v1.zip``) at a
+high and a low price of scan time on a few trees with real image tracking (Lucas-Kanade on the
+rendered bark) and clean masks, prints the table next to the paper's Table I, and writes
 ``results/demo/`` (table, summary, per-trial CSV, missed-vs-time plot, 3D reconstructions over the
 ground truth, a camera/scene snapshot, and a video of the PPO policy scanning the first tree).
 Re-running resumes.
@@ -26,7 +27,7 @@ import numpy as np
 from gymnasium.wrappers import RecordVideo
 from tqdm import tqdm
 
-from agents.factory import make_agent, spec_env_kwargs
+from agents.factory import make_agent, spec_env_kwargs, spec_reset_options
 from branch_gym.env import BranchScanEnv
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.episodes import run_episode
@@ -36,8 +37,16 @@ from branch_gym.sim.world import World
 
 # The trained policy shipped with the repository (README, "Learned rotation policies"); the
 # demo runs from the repository root (make demo).
-SHIPPED_MODEL = Path("models/ppo_trigger.zip")
-DEMO_POLICIES = ("none", "periodic:22.5:1.5", f"ppo:{SHIPPED_MODEL}")
+SHIPPED_MODEL = Path("models/ppo_v1.zip")
+# Seconds of scan time a found branch is worth (the ends of branch_gym.V1_BRANCH_VALUE_S, roughly).
+DEMO_PRICES_S = (50, 400)
+DEMO_POLICIES = (
+    "none",
+    "periodic:22.5:1.5",
+    "periodic:22.5:2.5",
+    "privileged",
+    *(f"ppo:{SHIPPED_MODEL}@{price}" for price in DEMO_PRICES_S),
+)
 DEMO_TREES = 4
 
 
@@ -51,7 +60,7 @@ def _video(out: Path, seed: int, policy: str) -> Path:
         disable_logger=True,
     )  # fmt: skip
     try:
-        run_episode(agent, recorder, seed, policy)
+        run_episode(agent, recorder, seed, policy, options=spec_reset_options(policy))
     finally:
         recorder.close()
     return next(folder.glob(f"scan_tree{seed}*.mp4"))

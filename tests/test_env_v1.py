@@ -88,3 +88,16 @@ def test_a_short_v1_training_run_writes_a_model_that_plays_at_a_given_price(tmp_
     model = out / "final_model.zip"
     result = run_trial(0, f"ppo:{model}@80", ScanConfig(tracker="oracle", end_height_m=0.33))
     assert result.n_iterations > 0 and result.policy == f"ppo:{model}@80"
+
+
+@pytest.mark.slow
+def test_the_shipped_policy_rotates_more_when_scan_time_is_cheap() -> None:
+    """One price-conditioned policy: a found branch worth 400 s buys more views than at 25 s."""
+    model = ROOT / "models" / "ppo_v1.zip"
+    scan = ScanConfig(tracker="oracle", end_height_m=0.5)
+    rotations = {}
+    for price in (25, 400):
+        results = [run_trial(seed, f"ppo:{model}@{price}", scan) for seed in (0, 1, 2)]
+        assert all(r.failure is None for r in results)
+        rotations[price] = [r.rotations for r in results]
+    assert sum(rotations[400]) > sum(rotations[25]), rotations

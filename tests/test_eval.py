@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from branch_gym.control import FollowControllerConfig
+from branch_gym.env.reward import RewardConfig
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.plots import write_figures
 from branch_gym.evaluation.report import (
@@ -39,6 +40,7 @@ from branch_gym.evaluation.trials import (
 )
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
+from branch_gym.training.selection import score_records, select_model, trial_return
 from recon.io.folder import ScanFolder
 from recon.metrics import TreeMetrics, aggregate
 from recon.model import BranchModel, TreeModel
@@ -449,3 +451,22 @@ def test_record_writes_a_replayable_scan_folder_per_trial(tmp_path: Path) -> Non
     scan = ScanFolder(folder)
     assert len(scan) > 10
     assert (folder / "truth.json").is_file() and (folder / "metadata.json").is_file()
+
+
+# ----------------------------------------------------------------------- checkpoint selection
+def test_selection_scores_a_trial_by_the_env_return_at_its_price() -> None:
+    metrics = _metrics([1.0], [2.0], (4, 3, 1, 1))  # 3 matched, 1 spurious, 1 duplicate
+    record = _record("ppo:m.zip@50", 0, metrics, scan_time_s=25.0, failure="collision")
+    expected = 3 - 0.5 - 0.5 - 25.0 / 50 - 1.0
+    assert trial_return(record, 50.0, RewardConfig()) == pytest.approx(expected)
+    cheap = _record("ppo:m.zip@25", 1, _metrics([1.0], [2.0], (2, 2, 0, 0)), scan_time_s=25.0)
+    score = score_records(Path("m.zip"), [record, cheap], [50.0, 25.0])
+    assert score.score == pytest.approx((expected + (2 - 1.0)) / 2)
+    assert score.missed_pct == pytest.approx(100 * 1 / 6) and score.failures == 1
+
+
+def test_selection_rejects_missing_models_and_empty_prices(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match=r"nope\.zip"):
+        select_model([tmp_path / "nope.zip"], tmp_path / "eval")
+    with pytest.raises(ValueError, match="at least one model"):
+        select_model([tmp_path / "m.zip"], tmp_path / "eval", prices_s=[])

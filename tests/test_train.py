@@ -18,14 +18,21 @@ from agents.ppo import (
     PolicyAgent,
     check_ppo_spec,
     flatten_observation,
+    load_model,
     load_policy,
 )
-from branch_gym.evaluation.episodes import run_trial
+from branch_gym.evaluation.episodes import run_episode, run_trial
 from branch_gym.scan import ScanConfig
 from branch_gym.training.callbacks import scan_metrics
 from branch_gym.training.checkpoints import CheckpointError, read_checkpoint
 from branch_gym.training.config import PPOConfig, TrainConfig
-from branch_gym.training.envs import DICT_POLICY, FLAT_POLICY, policy_class
+from branch_gym.training.envs import (
+    DICT_LSTM_POLICY,
+    DICT_POLICY,
+    FLAT_LSTM_POLICY,
+    FLAT_POLICY,
+    policy_class,
+)
 from branch_gym.training.paths import RunPaths
 from branch_gym.training.seeds import (
     EVAL_SEED_BASE,
@@ -46,6 +53,14 @@ CLI_ARGS = [
     "--tracker", "oracle", "--end-height", "0.33", "--n-envs", "1", "--seed", "3",
     "--n-steps", "32", "--batch-size", "32", "--n-epochs", "2", "--log-std-init", "-3",
     "--checkpoint-every", "64", "--eval-every", "64", "--eval-trees", "1",
+]  # fmt: skip
+# A tiny RecurrentPPO run on the discrete v1 env: one rollout of 32 steps, one epoch.
+RECURRENT_STEPS = 32
+RECURRENT_ARGS = [
+    "--env", branch_gym.DISCRETE_ENV_ID_V1, "--recurrent", "--first-action-logit", "3",
+    "--tracker", "oracle", "--end-height", "0.33", "--n-envs", "1", "--seed", "3",
+    "--n-steps", "32", "--batch-size", "32", "--n-epochs", "1",
+    "--checkpoint-every", "32", "--eval-every", "32", "--eval-trees", "1",
 ]  # fmt: skip
 
 
@@ -127,6 +142,16 @@ def test_config_validation_names_the_field() -> None:
     assert other.resume_conflicts(config) == ["tracker: 'lk' -> 'oracle'"]
 
 
+def test_recurrent_config_round_trips_and_cannot_change_on_resume() -> None:
+    recurrent = TrainConfig(recurrent=True, **SHORT)
+    assert TrainConfig.from_dict(json.loads(json.dumps(recurrent.to_dict()))) == recurrent
+    old = {k: v for k, v in recurrent.to_dict().items() if k != "recurrent"}  # an older run
+    assert TrainConfig.from_dict(old).recurrent is False
+    assert recurrent.resume_conflicts(TrainConfig(**SHORT)) == ["recurrent: False -> True"]
+    with pytest.raises(ValueError, match="recurrent"):
+        TrainConfig(recurrent="yes")
+
+
 def test_scan_metrics_skip_undefined_values() -> None:
     row = {"missed_pct": None, "spurious_pct": 0.0, "rotations": 2, "scan_time_s": 20.0}
     metrics = scan_metrics({**row, "failure": "lost_branch"})
@@ -139,6 +164,8 @@ def test_policy_class_follows_the_observation_space() -> None:
     try:
         assert policy_class(env.observation_space) == DICT_POLICY
         assert policy_class(flat.observation_space) == FLAT_POLICY
+        assert policy_class(env.observation_space, recurrent=True) == DICT_LSTM_POLICY
+        assert policy_class(flat.observation_space, recurrent=True) == FLAT_LSTM_POLICY
         dict_obs, _ = env.reset(seed=1)
         flat_obs, _ = flat.reset(seed=1)
         assert np.allclose(flatten_observation(dict_obs), flat_obs)
@@ -279,6 +306,55 @@ def test_flat_env_with_vecnormalize_resumes_and_acts_in_the_dict_env(tmp_path: P
         discrete.close()
     finally:
         env.close()
+
+
+class _StateSpy:
+    """An agent that records the state and episode_start each predict call gets."""
+
+    def __init__(self, agent: PolicyAgent) -> None:
+        self.agent = agent
+        self.calls: list[tuple[object, object]] = []
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        self.calls.append((state, episode_start))
+        return self.agent.predict(observation, state, episode_start, deterministic)
+
+
+@pytest.mark.slow
+def test_recurrent_run_plays_carries_its_lstm_state_and_resumes(tmp_path: Path, capsys) -> None:
+    """A RecurrentPPO run through the CLI (32 steps), an episode of it, then resumed to 64."""
+    from sb3_contrib import RecurrentPPO
+
+    out = tmp_path / "lstm"
+    cli = load_cli()
+    argv = ["--timesteps", str(RECURRENT_STEPS), "--out", str(out), *RECURRENT_ARGS]
+    assert cli.main(argv) == 0
+    paths = RunPaths(out)
+    assert TrainConfig.from_dict(json.loads(paths.config.read_text())["config"]).recurrent
+    assert len(paths.evaluations.read_text().splitlines()) == 1  # held-out eval with the LSTM
+    model = load_model(paths.final_model)
+    assert isinstance(model, RecurrentPPO)
+    bias = model.policy.action_net.bias.detach().numpy()
+    assert bias[0] - bias[1:].max() > 2.5  # --first-action-logit reached the LSTM policy
+    env = gymnasium.make(branch_gym.DISCRETE_ENV_ID_V1, **SHORT)
+    try:
+        spy = _StateSpy(load_policy(paths.final_model, env))
+        episode = run_episode(spy, env, EVAL_SEED_BASE, options={"branch_value_s": 80.0})
+        assert episode.steps == len(spy.calls) > 1 and episode.result.n_iterations > 0
+        assert spy.calls[0] == (None, True)  # a fresh LSTM state at the first step
+        hidden, cell = spy.calls[1][0]  # then the state predict returned, passed back
+        assert hidden.shape == cell.shape == (1, 1, model.policy.lstm_hidden_state_shape[-1])
+        assert all(state is not None and start is False for state, start in spy.calls[1:])
+    finally:
+        env.close()
+    resume = ["--timesteps", str(2 * RECURRENT_STEPS), "--out", str(out), *RECURRENT_ARGS]
+    capsys.readouterr()
+    assert cli.main([a for a in resume if a != "--recurrent"] + ["--resume"]) == 2
+    assert "recurrent: True -> False" in capsys.readouterr().err
+    assert cli.main([*resume, "--resume"]) == 0
+    assert read_checkpoint(paths).num_timesteps == 2 * RECURRENT_STEPS
+    resumed = load_model(paths.final_model)
+    assert isinstance(resumed, RecurrentPPO) and resumed.num_timesteps == 2 * RECURRENT_STEPS
 
 
 def _tensorboard_tags(folder: Path) -> set[str]:

@@ -85,12 +85,16 @@ def run_episode(
 
     Returns:
         The episode, scored with the scan's own ground truth.
+
+    The state ``predict`` returns (a recurrent model's LSTM state, a baseline's phase) is
+    passed back with the next observation; ``episode_start`` is True at the first step only.
     """
     observation, _ = env.reset(seed=seed, options=options)
+    state: Any = None
     episode_start, terminated, truncated, total, steps = True, False, False, 0.0, 0
     while not (terminated or truncated):
-        action, _ = agent.predict(
-            observation, episode_start=episode_start, deterministic=deterministic
+        action, state = agent.predict(
+            observation, state=state, episode_start=episode_start, deterministic=deterministic
         )
         observation, reward, terminated, truncated, _ = env.step(action)
         total += float(reward)

@@ -7,7 +7,9 @@
 ``callbacks.py``     per-episode scan metrics to TensorBoard, tqdm progress bar
 ``checkpoints.py``   atomic checkpoints (model, VecNormalize, ``checkpoint.json``) for resuming
 ``evaluation.py``    held-out evaluation during training, best model
-``policy.py``        ``load_policy(path)``: a trained model as an agent (``ppo:PATH`` specs)
+``selection.py``     checkpoint selection with LK tracking on validation trees (a CLI)
+``action_mix.py``    a fixed action mix for benchmarks (``bench/bench_train.py``)
+``curve.py``         the training curve figure
 ``paths.py``         the files of a run folder
 ``train.py``         ``train(config, out, resume)``
 ===================  ===========================================================================

@@ -10,6 +10,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
+from gymnasium import spaces
+
 from branch_gym import ENV_ID, ENV_IDS
 from branch_gym.config_utils import flatten_dict, is_number
 from branch_gym.env.config import env_config_from_kwargs
@@ -28,7 +30,7 @@ RESUMABLE_CHANGES = ("timesteps", "checkpoint_every", "eval_every")
 
 @dataclass(frozen=True)
 class PPOConfig:
-    """stable-baselines3 PPO hyper-parameters (SB3's defaults unless noted).
+    """stable-baselines3 PPO hyper-parameters (SB3's defaults unless noted; RecurrentPPO's too).
 
     Attributes:
         n_steps: Steps per environment per rollout (our choice: SB3's 2048 would be ~40 full
@@ -55,6 +57,10 @@ class PPOConfig:
             angle: 3.0 starts at p(hold) = e^3 / (e^3 + 2) = 0.91, ~4 rotations per scan like
             the paper's periodic settings, instead of a rotation at 2 of 3 steps (each ~1 s of
             wall time, the bulk of early training time). Unused by continuous envs.
+        cnn_output_dim: Features the image CNN of a Dict observation outputs (SB3's
+            ``CombinedExtractor`` default 256; with 64 the 60x80 image's linear layer shrinks
+            from 393k to 98k weights and a checkpoint from 6.5 to ~1.5 MB, small enough to
+            commit). Unused by flat (Box) observations.
     """
 
     n_steps: int = 256
@@ -70,9 +76,10 @@ class PPOConfig:
     target_kl: float | None = None
     log_std_init: float = 0.0
     first_action_logit_init: float = 0.0
+    cnn_output_dim: int = 256
 
     def __post_init__(self) -> None:
-        require_int(self, "n_steps", "batch_size", "n_epochs", minimum=1)
+        require_int(self, "n_steps", "batch_size", "n_epochs", "cnn_output_dim", minimum=1)
         require_positive(self, "learning_rate", "clip_range", "max_grad_norm")
         require_non_negative(self, "ent_coef", "vf_coef")
         if self.target_kl is not None:
@@ -83,10 +90,19 @@ class PPOConfig:
                 raise ValueError(f"PPOConfig.{name} must be in (0, 1], got {value!r}")
         require_finite(self, "log_std_init", "first_action_logit_init")
 
-    def sb3_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of ``stable_baselines3.PPO``."""
+    def sb3_kwargs(self, observation_space: spaces.Space | None = None) -> dict[str, Any]:
+        """Keyword arguments of ``stable_baselines3.PPO`` (and of sb3-contrib's RecurrentPPO).
+
+        Args:
+            observation_space: The env's; a Dict gets ``cnn_output_dim`` (its image CNN).
+        """
         kwargs = asdict(self)
         kwargs["policy_kwargs"] = {"log_std_init": kwargs.pop("log_std_init")}
+        cnn_output_dim = kwargs.pop("cnn_output_dim")
+        if isinstance(observation_space, spaces.Dict):
+            kwargs["policy_kwargs"]["features_extractor_kwargs"] = {
+                "cnn_output_dim": cnn_output_dim
+            }
         kwargs.pop("first_action_logit_init")  # applied to the built policy (train.py)
         return kwargs
 
@@ -97,7 +113,8 @@ class TrainConfig:
 
     Attributes:
         env_id: A registered id (``branch_gym.ENV_IDS``); Dict observations get SB3's
-            ``MultiInputPolicy``, the flat one ``MlpPolicy``.
+            ``MultiInputPolicy``, the flat one ``MlpPolicy`` (``MultiInputLstmPolicy`` and
+            ``MlpLstmPolicy`` when ``recurrent``).
         timesteps: Total environment steps to reach (a resumed run counts the steps done
             before; PPO stops at the first whole rollout past it).
         n_envs: Environments stepped in parallel (``SubprocVecEnv`` when > 1).
@@ -122,6 +139,11 @@ class TrainConfig:
         normalize: Wrap the training envs in ``VecNormalize`` (running mean/std of the
             observation vector and of the return). Our choice: off, the observation is
             already scaled to about [0, 1] and the rewards are O(1).
+        recurrent: Train sb3-contrib's ``RecurrentPPO`` (an LSTM between the features and the
+            policy and value heads, its state carried through each episode) instead of PPO, with
+            the same hyper-parameters. Our choice (issue 17, a recurrent variant if memory
+            helps): off; the v1 envs' coverage map is already an explicit memory. A resumed run
+            cannot switch it.
         ppo: PPO hyper-parameters.
     """
 
@@ -140,6 +162,7 @@ class TrainConfig:
     eval_trees: int = 10
     time_penalty_per_s: float | None = None
     normalize: bool = False
+    recurrent: bool = False
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
     def __post_init__(self) -> None:
@@ -150,13 +173,9 @@ class TrainConfig:
         require_int(self, "checkpoint_every", minimum=1)
         require_int(self, "eval_every", minimum=0)
         require_int(self, "eval_trees", minimum=1, maximum=MAX_EVAL_TREES)
-        if not isinstance(self.render_tracking_frames, bool):
-            raise ValueError(
-                "TrainConfig.render_tracking_frames must be a bool, got "
-                f"{self.render_tracking_frames!r}"
-            )
-        if not isinstance(self.normalize, bool):
-            raise ValueError(f"TrainConfig.normalize must be a bool, got {self.normalize!r}")
+        for name in ("render_tracking_frames", "normalize", "recurrent"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"TrainConfig.{name} must be a bool, got {getattr(self, name)!r}")
         if not isinstance(self.ppo, PPOConfig):
             raise ValueError(f"TrainConfig.ppo must be a PPOConfig, got {self.ppo!r}")
         rollout = self.ppo.n_steps * self.n_envs

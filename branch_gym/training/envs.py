@@ -23,6 +23,9 @@ from branch_gym.training.seeds import TreeSeedWrapper
 _WORKER_THREADS = 1
 DICT_POLICY = "MultiInputPolicy"
 FLAT_POLICY = "MlpPolicy"
+# sb3-contrib RecurrentPPO's (TrainConfig.recurrent): the same features, then an LSTM.
+DICT_LSTM_POLICY = "MultiInputLstmPolicy"
+FLAT_LSTM_POLICY = "MlpLstmPolicy"
 
 
 def make_env(config: TrainConfig, rank: int) -> gym.Env:
@@ -66,9 +69,16 @@ def make_eval_env(config: TrainConfig) -> gym.Env:
     return gym.make(config.env_id, **config.env_kwargs())
 
 
-def policy_class(observation_space: spaces.Space) -> str:
-    """SB3's policy for an observation space: MultiInputPolicy for Dict, MlpPolicy for a Box."""
-    return DICT_POLICY if isinstance(observation_space, spaces.Dict) else FLAT_POLICY
+def policy_class(observation_space: spaces.Space, recurrent: bool = False) -> str:
+    """SB3's policy for an observation space: MultiInputPolicy for Dict, MlpPolicy for a Box.
+
+    Args:
+        observation_space: The env's.
+        recurrent: RecurrentPPO's LSTM policies instead: MultiInputLstmPolicy, MlpLstmPolicy.
+    """
+    if isinstance(observation_space, spaces.Dict):
+        return DICT_LSTM_POLICY if recurrent else DICT_POLICY
+    return FLAT_LSTM_POLICY if recurrent else FLAT_POLICY
 
 
 def episode_counts(venv: Any) -> list[int]:

@@ -1,5 +1,8 @@
 """Train a PPO rotation policy: new runs, resumed runs, checkpoints, held-out evaluation.
 
+The algorithm is stable-baselines3's ``PPO``, or sb3-contrib's ``RecurrentPPO`` with an LSTM
+policy when ``TrainConfig.recurrent``.
+
 :func:`train` is what ``train.py`` at the repository root calls. A run lives in one folder
 (:class:`branch_gym.training.paths.RunPaths`); ``resume=True`` continues it from its latest
 checkpoint with the step count going on (SB3's ``reset_num_timesteps=False``), the training envs
@@ -16,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from agents.ppo import load_model, load_normalizer
+from agents.ppo import algorithm_class, load_model, load_normalizer
 from branch_gym.training.callbacks import ScanMetricsCallback, TqdmCallback
 from branch_gym.training.checkpoints import (
     CheckpointCallback,
@@ -86,9 +89,14 @@ def train(
     checkpoint = _check_run_folder(config, paths, resume)
     model, normalizer, best = None, None, None
     if checkpoint is not None:  # load before starting env processes: bad files fail fast
-        model = load_model(
-            paths.checkpoints / checkpoint.model, tensorboard_log=str(paths.tensorboard)
-        )
+        model_path = paths.checkpoints / checkpoint.model
+        model = load_model(model_path, tensorboard_log=str(paths.tensorboard))
+        algorithm = algorithm_class(config.recurrent)
+        if type(model) is not algorithm:
+            raise ValueError(
+                f"checkpoint model {model_path} is a {type(model).__name__}, the run config "
+                f"(recurrent={config.recurrent}) trains a {algorithm.__name__}"
+            )
         if checkpoint.vecnormalize is not None:
             normalizer = load_normalizer(paths.checkpoints / checkpoint.vecnormalize)
         best = checkpoint.best_mean_reward
@@ -145,6 +153,7 @@ def train(
 
 def write_run_config(paths: RunPaths, config: TrainConfig) -> None:
     """``OUT/config.json``: the configuration, the tree seed ranges and library versions."""
+    import sb3_contrib
     import stable_baselines3
     import torch
 
@@ -161,6 +170,7 @@ def write_run_config(paths: RunPaths, config: TrainConfig) -> None:
             },
             "versions": {
                 "stable_baselines3": stable_baselines3.__version__,
+                "sb3_contrib": sb3_contrib.__version__,
                 "torch": torch.__version__,
             },
         },
@@ -202,16 +212,15 @@ def _check_run_folder(config: TrainConfig, paths: RunPaths, resume: bool) -> Any
 
 
 def _new_model(config: TrainConfig, venv: Any, paths: RunPaths) -> Any:
-    from stable_baselines3 import PPO
-
-    model = PPO(
-        policy_class(venv.observation_space),
+    """A fresh PPO (or RecurrentPPO) model of the run's hyper-parameters on ``venv``."""
+    model = algorithm_class(config.recurrent)(
+        policy_class(venv.observation_space, config.recurrent),
         venv,
         seed=config.seed,
         device="cpu",
         tensorboard_log=str(paths.tensorboard),
         verbose=0,
-        **config.ppo.sb3_kwargs(),
+        **config.ppo.sb3_kwargs(venv.observation_space),
     )
     apply_first_action_logit(model, config.ppo.first_action_logit_init)
     return model
@@ -220,7 +229,8 @@ def _new_model(config: TrainConfig, venv: Any, paths: RunPaths) -> Any:
 def apply_first_action_logit(model: Any, bonus: float) -> None:
     """Add ``bonus`` to the initial logit of discrete action 0 (hold): a policy that starts calm.
 
-    No effect on continuous action spaces or with ``bonus`` 0.
+    No effect on continuous action spaces or with ``bonus`` 0. PPO's and RecurrentPPO's
+    policies both end in ``policy.action_net`` (after the MLP, or the LSTM then the MLP).
     """
     import torch
     from gymnasium import spaces
