@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from agents.ppo import PPO_SPEC_PREFIX, PRICE_SEPARATOR
 from branch_gym.env.reward import RewardConfig
@@ -112,8 +113,17 @@ def select_model(
     trees: int = DEFAULT_TREES,
     prices_s: Sequence[float] = DEFAULT_PRICES_S,
     workers: int = 1,
+    progress: bool = False,
 ) -> list[ModelScore]:
     """Evaluate every model at every price on the validation trees; best score first.
+
+    Args:
+        models: Candidate model files.
+        eval_dir: The evaluation folder (resumable: trials already there are reused).
+        trees: Validation trees.
+        prices_s: Prices of scan time (seconds a found branch is worth).
+        workers: Trials run at once.
+        progress: Show a progress bar.
 
     Raises:
         FileNotFoundError: a model file is missing.
@@ -135,7 +145,14 @@ def select_model(
         workers=workers,
         scan=ScanConfig(),  # LK tracking, clean masks: what eval.py's table uses
     )
-    outcome = run_evaluation(config, eval_dir, plot_seeds=[])
+    with tqdm(total=len(config.keys), unit="scan", disable=not progress) as bar:
+        outcome = run_evaluation(
+            config,
+            eval_dir,
+            plot_seeds=[],
+            on_start=lambda total, done: bar.update(done),
+            on_done=lambda key: bar.update(1),
+        )
     scores = []
     for model, group in specs.items():
         records = [r for r in outcome.records if r.policy in group]
@@ -155,7 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     eval_dir = args.eval_dir or args.out.with_suffix(".selection")
     try:
-        scores = select_model(args.models, eval_dir, args.trees, args.prices, args.workers)
+        scores = select_model(
+            args.models, eval_dir, args.trees, args.prices, args.workers, progress=True
+        )
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
