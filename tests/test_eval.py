@@ -460,7 +460,7 @@ def test_selection_scores_a_trial_by_the_env_return_at_its_price() -> None:
     expected = 3 - 0.5 - 0.5 - 25.0 / 50 - 1.0
     assert trial_return(record, 50.0, RewardConfig()) == pytest.approx(expected)
     cheap = _record("ppo:m.zip@25", 1, _metrics([1.0], [2.0], (2, 2, 0, 0)), scan_time_s=25.0)
-    score = score_records(Path("m.zip"), [record, cheap], [50.0, 25.0])
+    score = score_records(Path("m.zip"), [record, cheap])
     assert score.score == pytest.approx((expected + (2 - 1.0)) / 2)
     assert score.missed_pct == pytest.approx(100 * 1 / 6) and score.failures == 1
 

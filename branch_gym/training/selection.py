@@ -86,10 +86,8 @@ def trial_return(record: TrialRecord, price_s: float, reward: RewardConfig) -> f
     )
 
 
-def score_records(
-    model: Path, records: Sequence[TrialRecord], prices_s: Sequence[float]
-) -> ModelScore:
-    """Score one model from its trials (one per tree and price)."""
+def score_records(model: Path, records: Sequence[TrialRecord]) -> ModelScore:
+    """Score one model from its trials (one per tree and price; the price is in each spec)."""
     reward = RewardConfig()
     returns = []
     for record in records:
@@ -156,7 +154,7 @@ def select_model(
     scores = []
     for model, group in specs.items():
         records = [r for r in outcome.records if r.policy in group]
-        scores.append(score_records(model, records, prices_s))
+        scores.append(score_records(model, records))
     return sorted(scores, key=lambda s: -s.score)
 
 

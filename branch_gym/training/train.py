@@ -89,14 +89,10 @@ def train(
     checkpoint = _check_run_folder(config, paths, resume)
     model, normalizer, best = None, None, None
     if checkpoint is not None:  # load before starting env processes: bad files fail fast
-        model_path = paths.checkpoints / checkpoint.model
-        model = load_model(model_path, tensorboard_log=str(paths.tensorboard))
-        algorithm = algorithm_class(config.recurrent)
-        if type(model) is not algorithm:
-            raise ValueError(
-                f"checkpoint model {model_path} is a {type(model).__name__}, the run config "
-                f"(recurrent={config.recurrent}) trains a {algorithm.__name__}"
-            )
+        # The run's config.json pins ``recurrent`` (resume_conflicts); load_model reads the class.
+        model = load_model(
+            paths.checkpoints / checkpoint.model, tensorboard_log=str(paths.tensorboard)
+        )
         if checkpoint.vecnormalize is not None:
             normalizer = load_normalizer(paths.checkpoints / checkpoint.vecnormalize)
         best = checkpoint.best_mean_reward
