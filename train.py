@@ -6,7 +6,7 @@ Usage::
         [--resume] [--tracker lk|oracle] [--segmenter gt|noisy:mild|...] [--tree paper] \\
         [--end-height 0.75] [--speed 0.025] [--checkpoint-every 10000] [--eval-every 10000] \\
         [--eval-trees 10] [--normalize] [--n-steps 256] [--batch-size 64] [--n-epochs 10] \\
-        [--learning-rate 3e-4] [--log-std-init 0] [--recurrent]
+        [--learning-rate 3e-4] [--log-std-init 0] [--recurrent] [--init-model MODEL.zip]
 
 OUT then holds config.json, TensorBoard logs (tensorboard --logdir OUT/tb), checkpoints/,
 best_model.zip, evaluations.jsonl and final_model.zip. Evaluate a model with
@@ -57,6 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--normalize", action="store_true", help="VecNormalize obs vector + reward")
     parser.add_argument(
         "--recurrent", action="store_true", help="sb3-contrib RecurrentPPO with an LSTM policy"
+    )
+    parser.add_argument(
+        "--init-model",
+        type=Path,
+        help="start a new run from this model's weights (e.g. a DAgger student)",
     )
     parser.add_argument("--n-steps", type=int, help="PPO steps per env per rollout")
     parser.add_argument("--batch-size", type=int, help="PPO minibatch size")
@@ -117,6 +122,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         seed=args.seed,
         normalize=args.normalize,
         recurrent=args.recurrent,
+        init_model=None if args.init_model is None else str(args.init_model),
         render_tracking_frames=not args.pose_only_tracking_frames,
         ppo=PPOConfig(**{k: v for k, v in ppo.items() if v is not None}),
         **{k: v for k, v in run.items() if v is not None},

@@ -5,8 +5,9 @@ modeling iteration it looks at the ground-truth secondaries whose base lies in t
 band and that the current model does not match yet (:func:`recon.metrics.evaluate`). If the
 current view shows each of them at a good angle (the branch's horizontal direction at least
 ``good_view_deg`` from the optical axis: not hidden behind the primary, not pointing at the lens)
-it holds; otherwise it rotates to the candidate angle that shows the worst-placed one best,
-preferring small moves. With nothing pending it holds. Its points on the missed-vs-scan-time
+it holds; otherwise it rotates to the nearest candidate angle that shows them all well (a
+rotation costs scan time in proportion to its angle), or, where none does, to the one that shows
+the worst-placed branch best. With nothing pending it holds. Its points on the missed-vs-scan-time
 plot bound what a policy that sees only the pipeline's observation can reach.
 
 Spec (``agents.factory``): ``privileged``. It needs a single, unwrapped-able env (not vectorised).
@@ -26,6 +27,7 @@ from branch_gym.sim.validation import require_positive
 from recon.metrics import TruthIndex, evaluate, index_truth
 
 SPEC_KIND = "privileged"
+_VIEW_DECIMALS = 6
 
 
 @dataclass(frozen=True)
@@ -87,7 +89,7 @@ class PrivilegedAgent(BaselineAgent):
         if session is None:
             raise ValueError(f"the privileged policy needs a single BranchScan env, got {env!r}")
         base = BaselineAgent.for_env(env)
-        return cls(
+        agent = cls(
             session,
             config,
             theta_max_deg=base.theta_max_deg,
@@ -95,20 +97,19 @@ class PrivilegedAgent(BaselineAgent):
             trigger_angles_deg=base.trigger_angles_deg,
             hold_tolerance_deg=base.hold_tolerance_deg,
         )
+        agent.hold_action = base.hold_action  # v1's action 0 holds, k >= 1 are the angles
+        return agent
 
     def target_angle_deg(self) -> float:
         """The target angle for the session's current state (deg)."""
-        session, config = self.session, self.config
-        current = float(session.angle_deg)
-        pending = self._pending_directions_rad()
-        if len(pending) == 0 or _worst_view_deg(pending, current) >= config.good_view_deg:
-            return current
-        scores = [
-            (_worst_view_deg(pending, angle), -abs(angle - current), angle)
-            for angle in config.candidate_angles_deg
-        ]
-        best = max(scores)
-        return current if best[0] <= _worst_view_deg(pending, current) else float(best[2])
+        current = float(self.session.angle_deg)
+        config = self.config
+        return choose_angle_deg(
+            self._pending_directions_rad(),
+            current,
+            config.candidate_angles_deg,
+            config.good_view_deg,
+        )
 
     def _pending_directions_rad(self) -> np.ndarray:
         """Headings (rad, 0 along +y) of the in-view branches the model does not match yet."""
@@ -139,6 +140,43 @@ class PrivilegedAgent(BaselineAgent):
         if len(vectors) != 1:
             raise ValueError("the privileged policy acts in a single env, not a batch")
         return np.array([self.target_angle_deg()]), state
+
+
+def choose_angle_deg(
+    headings_rad: np.ndarray,
+    current_deg: float,
+    candidate_angles_deg: tuple[float, ...],
+    good_view_deg: float,
+) -> float:
+    """The privileged policy's target angle for the pending branches' headings.
+
+    Hold where nothing is pending or the current view shows every pending branch at least
+    ``good_view_deg`` from the optical axis; else the nearest candidate angle that does (a
+    rotation costs scan time in proportion to its angle); where none does, the candidate that
+    shows the worst-placed branch best (nearest first), if it beats the current view.
+
+    Args:
+        headings_rad: (P,) horizontal headings of the pending branches (rad, 0 along +y).
+        current_deg: The current rotation (deg).
+        candidate_angles_deg: Angles it may rotate to (deg).
+        good_view_deg: The angle from the optical axis that counts as well in view (deg).
+
+    Returns:
+        The target angle (deg); ``current_deg`` to hold.
+    """
+    if len(headings_rad) == 0 or _worst_view_deg(headings_rad, current_deg) >= good_view_deg:
+        return current_deg
+    # Rounded to a micro-degree so that mirror-image views tie and the nearer angle wins.
+    views = {
+        angle: round(_worst_view_deg(headings_rad, angle), _VIEW_DECIMALS)
+        for angle in candidate_angles_deg
+    }
+    good = [angle for angle, view in views.items() if view >= good_view_deg]
+    if good:
+        return float(min(good, key=lambda angle: abs(angle - current_deg)))
+    best = max(views, key=lambda angle: (views[angle], -abs(angle - current_deg)))
+    current_view = round(_worst_view_deg(headings_rad, current_deg), _VIEW_DECIMALS)
+    return current_deg if views[best] <= current_view else float(best)
 
 
 def _worst_view_deg(headings_rad: np.ndarray, rotation_deg: float) -> float:

@@ -98,14 +98,14 @@ def test_first_action_logit_starts_ppo_holding(tmp_path: Path) -> None:
 
     from branch_gym.training.config import PPOConfig, TrainConfig
     from branch_gym.training.paths import RunPaths
-    from branch_gym.training.train import _new_model
+    from branch_gym.training.train import new_model
 
     venv = DummyVecEnv([lambda: gymnasium.make(branch_gym.TRIGGER_ENV_ID, tracker="oracle")])
     probabilities = {}
     for bonus in (0.0, 3.0):
         ppo = PPOConfig(n_steps=64, first_action_logit_init=bonus)
         config = TrainConfig(env_id=branch_gym.TRIGGER_ENV_ID, tracker="oracle", ppo=ppo)
-        model = _new_model(config, venv, RunPaths(tmp_path / f"run{bonus}"))
+        model = new_model(config, venv, str(RunPaths(tmp_path / f"run{bonus}").tensorboard))
         obs = venv.reset()
         tensor, _ = model.policy.obs_to_tensor(obs)
         probabilities[bonus] = model.policy.get_distribution(tensor).distribution.probs[0]

@@ -144,6 +144,9 @@ class TrainConfig:
             the same hyper-parameters. Our choice (issue 17, a recurrent variant if memory
             helps): off; the v1 envs' coverage map is already an explicit memory. A resumed run
             cannot switch it.
+        init_model: A model file whose policy weights a new run starts from instead of a
+            random initialisation (a PPO model of the same env and ``ppo`` network shape, e.g.
+            a DAgger student of :mod:`branch_gym.training.imitation`); None starts fresh.
         ppo: PPO hyper-parameters.
     """
 
@@ -163,6 +166,7 @@ class TrainConfig:
     time_penalty_per_s: float | None = None
     normalize: bool = False
     recurrent: bool = False
+    init_model: str | None = None
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
     def __post_init__(self) -> None:
@@ -176,6 +180,8 @@ class TrainConfig:
         for name in ("render_tracking_frames", "normalize", "recurrent"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrainConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if self.init_model is not None and (self.recurrent or not str(self.init_model)):
+            raise ValueError("TrainConfig.init_model needs a model file path and recurrent=False")
         if not isinstance(self.ppo, PPOConfig):
             raise ValueError(f"TrainConfig.ppo must be a PPOConfig, got {self.ppo!r}")
         rollout = self.ppo.n_steps * self.n_envs

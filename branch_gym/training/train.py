@@ -101,7 +101,7 @@ def train(
     eval_env = make_eval_env(config) if config.eval_every > 0 else None
     try:
         if model is None:
-            model = _new_model(config, venv, paths)
+            model = new_model(config, venv, str(paths.tensorboard))
         else:
             model.set_env(venv)
             model.set_random_seed(_resume_seed(config.seed, checkpoint.num_timesteps))
@@ -207,19 +207,46 @@ def _check_run_folder(config: TrainConfig, paths: RunPaths, resume: bool) -> Any
     return checkpoint
 
 
-def _new_model(config: TrainConfig, venv: Any, paths: RunPaths) -> Any:
-    """A fresh PPO (or RecurrentPPO) model of the run's hyper-parameters on ``venv``."""
+def new_model(config: TrainConfig, env: Any, tensorboard_log: str | None = None) -> Any:
+    """A fresh PPO (or RecurrentPPO) model of the run's hyper-parameters on ``env``.
+
+    Its weights come from ``config.init_model`` when set, else a random initialisation with
+    ``first_action_logit_init`` applied.
+
+    Args:
+        config: The run.
+        env: A (vector) env of the run's spaces.
+        tensorboard_log: TensorBoard folder, or None for no logs.
+    """
     model = algorithm_class(config.recurrent)(
-        policy_class(venv.observation_space, config.recurrent),
-        venv,
+        policy_class(env.observation_space, config.recurrent),
+        env,
         seed=config.seed,
         device="cpu",
-        tensorboard_log=str(paths.tensorboard),
+        tensorboard_log=tensorboard_log,
         verbose=0,
-        **config.ppo.sb3_kwargs(venv.observation_space),
+        **config.ppo.sb3_kwargs(env.observation_space),
     )
-    apply_first_action_logit(model, config.ppo.first_action_logit_init)
+    if config.init_model is not None:
+        load_policy_weights(model, config.init_model)
+    else:
+        apply_first_action_logit(model, config.ppo.first_action_logit_init)
     return model
+
+
+def load_policy_weights(model: Any, path: str | Path) -> None:
+    """Copy the policy (and value) weights of a saved PPO model into ``model``.
+
+    Raises:
+        FileNotFoundError: no such file (named).
+        ValueError: not a model file (``ModelFileError``), or its network does not fit
+            ``model``'s (named).
+    """
+    source = load_model(path)
+    try:
+        model.policy.load_state_dict(source.policy.state_dict())
+    except RuntimeError as exc:
+        raise ValueError(f"init model {path} does not fit the run's network: {exc}") from exc
 
 
 def apply_first_action_logit(model: Any, bonus: float) -> None:

@@ -1,0 +1,134 @@
+"""DAgger warm start (branch_gym.training.imitation): the fit, a resumable run, a loadable model."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from branch_gym.env.layout import VectorField
+from branch_gym.training.config import PPOConfig, TrainConfig
+from branch_gym.training.imitation import (
+    ROUNDS_LOG,
+    ImitationConfig,
+    RoundData,
+    fit_student,
+    imitate,
+    label_weights,
+    new_student,
+)
+
+FAST = TrainConfig(
+    env_id="BranchScanDiscrete-v1",
+    tracker="oracle",
+    render_tracking_frames=False,
+    end_height_m=0.42,
+    ppo=PPOConfig(cnn_output_dim=16),
+)
+
+
+def test_bad_settings_are_named():
+    with pytest.raises(ValueError, match="discrete env"):
+        ImitationConfig(train=TrainConfig(env_id="BranchScan-v0"))
+    with pytest.raises(ValueError, match="rounds"):
+        ImitationConfig(train=FAST, rounds=0)
+    with pytest.raises(ValueError, match="rotation_weight"):
+        ImitationConfig(train=FAST, rotation_weight=0.0)
+
+
+def test_round_data_round_trips_and_a_corrupt_file_is_named(tmp_path):
+    data = RoundData({"vector": np.ones((3, 12), np.float32)}, np.array([0, 2, 1]))
+    data.save(tmp_path / "round_0.npz")
+    loaded = RoundData.load(tmp_path / "round_0.npz")
+    np.testing.assert_array_equal(loaded.expert_actions, [0, 2, 1])
+    np.testing.assert_array_equal(loaded.observations["vector"], data.observations["vector"])
+    (tmp_path / "round_1.npz").write_bytes(b"not a zip")
+    with pytest.raises(ValueError, match=r"round_1\.npz"):
+        RoundData.load(tmp_path / "round_1.npz")
+
+
+def test_the_fit_learns_a_rule_the_labels_follow():
+    """Labels that depend on one observation field are reproduced by the fitted policy."""
+    config = ImitationConfig(train=FAST, epochs=30, batch_size=64, learning_rate=3e-3)
+    model = new_student(config)
+    rng = np.random.default_rng(0)
+    space = model.observation_space
+    n = 400
+    observations = {key: np.stack([sub.sample() for _ in range(n)]) for key, sub in space.items()}
+    observations["image"][:] = 0
+    angle = rng.uniform(-1, 1, n).astype(np.float32)
+    observations["vector"][:, VectorField.ANGLE] = angle
+    labels = np.where(angle > 0.2, 2, 0).astype(np.int64)  # rotate to -22.5 deg when turned right
+    fit = fit_student(model, RoundData(observations, labels), config, rng)
+    assert fit["train_accuracy"] >= 0.95
+    probe = {key: value[:50] for key, value in observations.items()}
+    actions, _ = model.predict(probe, deterministic=True)
+    assert np.mean(actions == labels[:50]) >= 0.9
+
+
+@pytest.mark.slow
+def test_a_dagger_run_resumes_and_writes_a_loadable_policy(tmp_path):
+    import gymnasium as gym
+
+    from agents.factory import make_agent
+
+    config = ImitationConfig(train=FAST, rounds=1, episodes=2, epochs=1)
+    imitate(config, tmp_path, workers=1)
+    rows = [json.loads(line) for line in (tmp_path / ROUNDS_LOG).read_text().splitlines()]
+    assert [row["played_by"] for row in rows] == ["expert"]
+    assert rows[0]["agreement"] == 1.0 and rows[0]["labels"] > 0
+    with pytest.raises(FileExistsError):
+        imitate(config, tmp_path, workers=1)
+    with pytest.raises(ValueError, match="another configuration"):
+        imitate(ImitationConfig(train=FAST, rounds=2, episodes=3), tmp_path, resume=True)
+    more = ImitationConfig(train=FAST, rounds=2, episodes=2, epochs=1)
+    final = imitate(more, tmp_path, resume=True)
+    rows = [json.loads(line) for line in (tmp_path / ROUNDS_LOG).read_text().splitlines()]
+    assert [row["played_by"] for row in rows] == ["expert", "student"]
+    env = gym.make("BranchScanDiscrete-v1", tracker="oracle", render_tracking_frames=False)
+    agent = make_agent(f"ppo:{final}@100", env)
+    observation, _ = env.reset(seed=3)
+    action, _ = agent.predict(observation)
+    assert env.action_space.contains(int(action))
+    env.close()
+
+
+def test_a_new_ppo_run_starts_from_the_init_models_weights(tmp_path):
+    import gymnasium as gym
+    import torch
+
+    from branch_gym.training.train import new_model
+
+    source = new_student(ImitationConfig(train=FAST))
+    source.save(tmp_path / "student.zip")
+    env = gym.make(FAST.env_id, **FAST.env_kwargs())
+    started = new_model(replace(FAST, seed=1, init_model=str(tmp_path / "student.zip")), env)
+    fresh = new_model(replace(FAST, seed=1), env)
+    for name, weights in source.policy.state_dict().items():
+        assert torch.equal(started.policy.state_dict()[name], weights), name
+    assert any(
+        not torch.equal(fresh.policy.state_dict()[name], weights)
+        for name, weights in source.policy.state_dict().items()
+    )
+    saved = str(tmp_path / "student.zip")
+    wider = replace(FAST, ppo=PPOConfig(cnn_output_dim=32), init_model=saved)
+    with pytest.raises(ValueError, match="does not fit"):
+        new_model(wider, env)
+    with pytest.raises(FileNotFoundError, match=r"missing\.zip"):
+        new_model(replace(FAST, init_model=str(tmp_path / "missing.zip")), env)
+    env.close()
+
+
+def test_price_conditioned_weights_follow_the_branch_value():
+    """A rotation label weighs rotation_weight * V / reference; holds weigh 1."""
+    prices = np.array([[0.0], [0.5], [1.0], [1.0]], np.float32)  # 25, 100, 400, 400 s
+    data = RoundData({"price": prices}, np.array([1, 1, 1, 0]))
+    config = ImitationConfig(train=FAST, rotation_weight=2.0, reference_value_s=100.0)
+    weights = label_weights(data, config, (25.0, 400.0))
+    np.testing.assert_allclose(weights, [0.5, 2.0, 8.0, 1.0])
+    plain = label_weights(data, ImitationConfig(train=FAST, rotation_weight=2.0))
+    np.testing.assert_allclose(plain, [2.0, 2.0, 2.0, 1.0])
+    with pytest.raises(ValueError, match="price"):
+        label_weights(RoundData({"vector": prices}, data.expert_actions), config, (25.0, 400.0))
