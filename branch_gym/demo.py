@@ -1,11 +1,12 @@
 """``make demo``: scan a handful of simulated trees, print the reconstruction table, write figures.
 
 Runs the paper's no-rotation baseline, two of its periodic settings, the privileged bound (it
-reads the ground truth) and the shipped price-conditioned PPO policy (``models/ppo_v1.zip``) at a
-high and a low price of scan time on a few trees with real image tracking (Lucas-Kanade on the
+reads the ground truth), the shipped learned policy (``models/ppo_dagger.zip``, a DAgger student of
+the privileged policy) and its price-conditioned sibling (``models/ppo_dagger_priced.zip``) at a
+low and a high price of scan time on a few trees with real image tracking (Lucas-Kanade on the
 rendered bark) and clean masks, prints the table next to the paper's Table I, and writes
 ``results/demo/`` (table, summary, per-trial CSV, missed-vs-time plot, 3D reconstructions over the
-ground truth, a camera/scene snapshot, and a video of the PPO policy scanning the first tree).
+ground truth, a camera/scene snapshot, and a video of the price-conditioned policy scanning the first tree).
 Re-running resumes.
 
 Usage: ``python -m branch_gym.demo [--trees N] [--out DIR] [--workers K]``
@@ -35,17 +36,21 @@ from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.report import format_comparison
 from branch_gym.sim.world import World
 
-# The trained policy shipped with the repository (README, "Learned rotation policies"); the
+# The trained policies shipped with the repository (README, "Learned rotation policies"); the
 # demo runs from the repository root (make demo).
-SHIPPED_MODEL = Path("models/ppo_v1.zip")
-# Seconds of scan time a found branch is worth (the ends of branch_gym.V1_BRANCH_VALUE_S, roughly).
-DEMO_PRICES_S = (50, 400)
+SHIPPED_MODEL = Path("models/ppo_dagger.zip")
+PRICED_MODEL = Path("models/ppo_dagger_priced.zip")
+# Seconds of scan time a found branch is worth: the reward's reference, and the ends of
+# branch_gym.V1_BRANCH_VALUE_S for the price-conditioned policy.
+SHIPPED_PRICE_S = 100
+DEMO_PRICES_S = (25, 400)
 DEMO_POLICIES = (
     "none",
     "periodic:22.5:1.5",
     "periodic:22.5:2.5",
     "privileged",
-    *(f"ppo:{SHIPPED_MODEL}@{price}" for price in DEMO_PRICES_S),
+    f"ppo:{SHIPPED_MODEL}@{SHIPPED_PRICE_S}",
+    *(f"ppo:{PRICED_MODEL}@{price}" for price in DEMO_PRICES_S),
 )
 DEMO_TREES = 4
 

@@ -132,3 +132,16 @@ def test_price_conditioned_weights_follow_the_branch_value():
     np.testing.assert_allclose(plain, [2.0, 2.0, 2.0, 1.0])
     with pytest.raises(ValueError, match="price"):
         label_weights(RoundData({"vector": prices}, data.expert_actions), config, (25.0, 400.0))
+
+
+def test_without_held_out_labels_every_epoch_runs():
+    config = ImitationConfig(train=FAST, epochs=3, batch_size=64, validation_fraction=0.0)
+    model = new_student(config)
+    space = model.observation_space
+    observations = {key: np.stack([sub.sample() for _ in range(64)]) for key, sub in space.items()}
+    labels = np.zeros(64, np.int64)
+    fit = fit_student(model, RoundData(observations, labels), config, np.random.default_rng(0))
+    assert fit["epochs_kept"] == 3 and np.isnan(fit["held_out_loss"])
+    assert fit["train_accuracy"] == 1.0  # "hold" everywhere is learnt in three epochs
+    with pytest.raises(ValueError, match="validation_fraction"):
+        ImitationConfig(train=FAST, validation_fraction=1.0)
