@@ -6,7 +6,8 @@ the privileged policy) and its price-conditioned sibling (``models/ppo_dagger_pr
 low and a high price of scan time on a few trees with real image tracking (Lucas-Kanade on the
 rendered bark) and clean masks, prints the table next to the paper's Table I, and writes
 ``results/demo/`` (table, summary, per-trial CSV, missed-vs-time plot, 3D reconstructions over the
-ground truth, a camera/scene snapshot, and a video of the price-conditioned policy scanning the first tree).
+ground truth, a camera/scene snapshot, and a video of the price-conditioned policy scanning the
+first tree).
 Re-running resumes.
 
 Usage: ``python -m branch_gym.demo [--trees N] [--out DIR] [--workers K]``
