@@ -52,12 +52,19 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
+from tqdm import tqdm
 
+import branch_gym  # noqa: F401  (registers the env ids in worker processes)
+from agents.ppo import load_model
+from agents.privileged import PrivilegedAgent
 from branch_gym.env.layout import PRICE_KEY
+from branch_gym.evaluation.episodes import run_episode
 from branch_gym.sim.validation import require_int, require_non_negative, require_positive
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.seeds import train_seed_range
+from branch_gym.training.train import new_model
 
 logger = logging.getLogger(__name__)
 
@@ -197,11 +204,7 @@ _WORKER: dict[str, Any] = {}
 def _init_worker(train_config: dict[str, Any]) -> None:
     os.environ.setdefault("OMP_NUM_THREADS", str(_WORKER_THREADS))
     import cv2
-    import gymnasium as gym
     import torch
-
-    import branch_gym  # noqa: F401  (registers the env ids)
-    from agents.privileged import PrivilegedAgent
 
     cv2.setNumThreads(_WORKER_THREADS)
     torch.set_num_threads(_WORKER_THREADS)
@@ -214,80 +217,100 @@ def _student(path: str | None) -> Any:
     if path is None:
         return None
     if _WORKER["path"] != path:
-        from agents.ppo import load_model
-
         _WORKER.update(student=load_model(path), path=path)
     return _WORKER["student"]
 
 
-def run_episode(tree_seed: int, student_path: str | None) -> tuple[RoundData, dict[str, Any]]:
+class LabellingAgent:
+    """Acts as the student (the expert where None) and records the expert's action at each step.
+
+    An :class:`agents.protocol.Agent`, so the project's one episode loop
+    (:func:`branch_gym.evaluation.episodes.run_episode`) plays it.
+
+    Args:
+        expert: The privileged policy of the env.
+        student: A model with SB3's ``predict``, or None to let the expert act.
+    """
+
+    def __init__(self, expert: Any, student: Any = None) -> None:
+        self.expert, self.student = expert, student
+        self.observations: list[dict[str, np.ndarray]] = []
+        self.labels: list[int] = []
+        self.agreed = 0
+
+    def predict(
+        self,
+        observation: dict[str, np.ndarray],
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[int, Any]:
+        expert_action = int(self.expert.predict(observation, episode_start=episode_start)[0])
+        action = expert_action
+        if self.student is not None:
+            action = int(self.student.predict(observation, deterministic=deterministic)[0])
+        self.agreed += action == expert_action
+        self.observations.append({key: np.array(value) for key, value in observation.items()})
+        self.labels.append(expert_action)
+        return action, state
+
+    def round_data(self) -> RoundData:
+        """The recorded observations, stacked, with the expert's action at each."""
+        keys = self.observations[0].keys()
+        stacked = {key: np.stack([o[key] for o in self.observations]) for key in keys}
+        return RoundData(stacked, np.asarray(self.labels, np.int64))
+
+
+def label_episode(tree_seed: int, student_path: str | None) -> tuple[RoundData, dict[str, Any]]:
     """One labelled episode in this worker: the student acts (the expert if None).
 
     Returns:
         The visited observations with the expert's action at each, and the episode's summary
-        (tree seed, steps, agreement with the expert, rotations, scan time, missed %).
+        (tree seed, steps, agreement with the expert, rotations, scan time, missed branches).
     """
-    env, expert, student = _WORKER["env"], _WORKER["expert"], _student(student_path)
-    observation, info = env.reset(seed=int(tree_seed))
-    observations: list[dict[str, np.ndarray]] = []
-    labels, agreed = [], 0
-    done, episode_start = False, True
-    while not done:
-        expert_action, _ = expert.predict(observation, episode_start=episode_start)
-        expert_action = int(expert_action)
-        action = expert_action
-        if student is not None:
-            action = int(student.predict(observation, deterministic=True)[0])
-        agreed += action == expert_action
-        observations.append({key: np.array(value) for key, value in observation.items()})
-        labels.append(expert_action)
-        observation, _, terminated, truncated, info = env.step(action)
-        done, episode_start = terminated or truncated, False
-    metrics = info.get("metrics", {})
+    agent = LabellingAgent(_WORKER["expert"], _student(student_path))
+    result = run_episode(agent, _WORKER["env"], int(tree_seed)).result
+    metrics = result.metrics
     summary = {
         "tree_seed": int(tree_seed),
-        "steps": len(labels),
-        "agreement": agreed / len(labels),
-        "expert_rotate_share": float(np.mean(np.asarray(labels) != 0)),
-        "rotations": int(info["rotations"]),
-        "scan_time_s": float(info["scan_time_s"]),
-        "n_gt": int(metrics.get("n_gt", 0) or 0),
-        "n_missed": int(metrics.get("n_missed", 0) or 0),
+        "steps": len(agent.labels),
+        "agreement": agent.agreed / len(agent.labels),
+        "expert_rotate_share": float(np.mean(np.asarray(agent.labels) != 0)),
+        "rotations": int(result.rotations),
+        "scan_time_s": float(result.scan_time_s),
+        "n_gt": int(metrics.n_gt),
+        "n_missed": int(metrics.n_missed),
     }
-    stacked = {key: np.stack([o[key] for o in observations]) for key in observations[0]}
-    return RoundData(stacked, np.asarray(labels, np.int64)), summary
+    return agent.round_data(), summary
 
 
 def _episode_task(args: tuple[int, str | None]) -> tuple[RoundData, dict[str, Any]]:
-    return run_episode(*args)
+    return label_episode(*args)
 
 
 # -- fitting -----------------------------------------------------------------------------------
 
 
-def new_student(config: ImitationConfig) -> Any:
-    """A fresh PPO model of the run's architecture (its env built only for the spaces)."""
-    import gymnasium as gym
+def new_student(config: ImitationConfig, env: Any = None) -> Any:
+    """A fresh PPO model of the run's architecture.
 
-    from branch_gym.training.train import new_model
-
+    Args:
+        config: The run.
+        env: An env of the run's spaces; None builds one for the call.
+    """
     train = config.train
-    env = gym.make(train.env_id, **train.env_kwargs())
+    own = env is None
+    env = gym.make(train.env_id, **train.env_kwargs()) if own else env
     try:
         return new_model(replace(train, ppo=replace(train.ppo, first_action_logit_init=0.0)), env)
     finally:
-        env.close()
+        if own:
+            env.close()
 
 
-def value_bounds_s(config: ImitationConfig) -> tuple[float, float] | None:
-    """The run's env's ``branch_value_s`` bounds (s); None for an env without a price."""
-    import gymnasium as gym
-
-    env = gym.make(config.train.env_id, **config.train.env_kwargs())
-    try:
-        bounds = env.unwrapped.config.branch_value_s
-    finally:
-        env.close()
+def value_bounds_s(env: Any) -> tuple[float, float] | None:
+    """An env's ``branch_value_s`` bounds (s); None for an env without a price."""
+    bounds = env.unwrapped.config.branch_value_s
     return None if bounds is None else (float(bounds[0]), float(bounds[1]))
 
 
@@ -451,14 +474,13 @@ def imitate(
     while (out / f"model_round_{done}.zip").exists() and done < config.rounds:
         rounds.append(RoundData.load(out / f"round_{done}.npz"))
         done += 1
-    from agents.ppo import load_model
-
-    model = load_model(out / f"model_round_{done - 1}.zip") if done else new_student(config)
-    bounds = value_bounds_s(config)
+    spaces_env = gym.make(config.train.env_id, **config.train.env_kwargs())
+    model = (
+        load_model(out / f"model_round_{done - 1}.zip") if done else new_student(config, spaces_env)
+    )
+    bounds = value_bounds_s(spaces_env)
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=config.rounds * config.episodes, initial=done * config.episodes)
     context = concurrent.futures.ProcessPoolExecutor(
         max_workers=workers,
@@ -466,34 +488,37 @@ def imitate(
         initargs=(config.train.to_dict(),),
         mp_context=_spawn_context(),
     )
-    with context as pool:
-        for round_index in range(done, config.rounds):
-            student_path = (
-                None if round_index == 0 else str(out / f"model_round_{round_index - 1}.zip")
-            )
-            tasks = [
-                (config.tree_seed(round_index, episode), student_path)
-                for episode in range(config.episodes)
-            ]
-            results, summaries = [], []
-            for data, summary in pool.map(_episode_task, tasks):
-                results.append(data)
-                summaries.append(summary)
-                if bar is not None:
-                    bar.update(1)
-            round_data = RoundData.concatenate(results)
-            round_data.save(out / f"round_{round_index}.npz")
-            rounds.append(round_data)
-            rng = np.random.default_rng([config.train.seed, round_index])
-            if config.from_scratch:
-                model = new_student(config)
-            fit = fit_student(model, RoundData.concatenate(rounds), config, rng, bounds)
-            model.save(out / f"model_round_{round_index}.zip")
-            labels = len(round_data.expert_actions)
-            settings = {name: getattr(config, name) for name in RESUMABLE_CHANGES[1:]}
-            _log_round(out, round_index, student_path is None, summaries, fit, labels, settings)
-    if bar is not None:
-        bar.close()
+    try:
+        with context as pool:
+            for round_index in range(done, config.rounds):
+                student_path = (
+                    None if round_index == 0 else str(out / f"model_round_{round_index - 1}.zip")
+                )
+                tasks = [
+                    (config.tree_seed(round_index, episode), student_path)
+                    for episode in range(config.episodes)
+                ]
+                results, summaries = [], []
+                for data, summary in pool.map(_episode_task, tasks):
+                    results.append(data)
+                    summaries.append(summary)
+                    if bar is not None:
+                        bar.update(1)
+                round_data = RoundData.concatenate(results)
+                round_data.save(out / f"round_{round_index}.npz")
+                rounds.append(round_data)
+                rng = np.random.default_rng([config.train.seed, round_index])
+                if config.from_scratch:
+                    model = new_student(config, spaces_env)
+                fit = fit_student(model, RoundData.concatenate(rounds), config, rng, bounds)
+                model.save(out / f"model_round_{round_index}.zip")
+                labels = len(round_data.expert_actions)
+                settings = {name: getattr(config, name) for name in RESUMABLE_CHANGES[1:]}
+                _log_round(out, round_index, student_path is None, summaries, fit, labels, settings)
+    finally:
+        spaces_env.close()
+        if bar is not None:
+            bar.close()
     final = out / FINAL_MODEL
     model.save(final)
     return final
