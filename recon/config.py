@@ -40,6 +40,11 @@ class ModelerConfig:
             from the model's primary where it agrees with the mask are dropped before the refit
             (ours: the RANSAC inlier distance; a side branch pointing at the camera covers the
             trunk in the mask and was lifted as primary; 0 disables).
+        primary_front_depth_gate_m: The same gate for points in front of the model (nearer the
+            camera), and for steps toward the camera beyond it (ours, measured: at 3 cm a branch
+            approaching the camera over the trunk still pulled the primary 3-5 cm toward it, at
+            1.5 cm no longer; the gate behind the model stays at 3 cm: at 1.5-2 cm a scan lost
+            the branch after a rotation, seed 40). 0 uses ``primary_depth_gate_m``.
         primary_spacing_px: Target spacing of model points when projected (paper IV: ~30 px).
         image_margin_px: Model points are "visible" when projected this far inside the image
             (reference.md: the 2D stage drops pixels within 10 px of the border).
@@ -50,6 +55,12 @@ class ModelerConfig:
             (paper IV: 3 cm).
         connection_ray_length_m: How far back from its start a secondary's ray is followed (our
             choice: the longest secondary is 15 cm, reference.md).
+        secondary_junction_px: A detection that fails the connection test connects at its 2D
+            candidate's junction when the model's primary projects within this of it (ours:
+            twice ``consistency_tolerance_px``; the skeleton's junction node sits a few pixels
+            off the axis toward the branch).
+        secondary_junction_on_mask: ... and when at least this fraction of the straight run from
+            that junction to the first lifted point projects onto the mask (ours).
         secondary_min_points: Fewest lifted points to create a secondary (our choice).
         secondary_merge_distance_m: A detection whose samples lie (median) this close to a model
             secondary is the same branch (our choice: half the metric's 2 cm match radius); the
@@ -95,11 +106,14 @@ class ModelerConfig:
     ransac_iterations: int = 40
     min_lifted_points: int = 5
     primary_depth_gate_m: float = 0.03
+    primary_front_depth_gate_m: float = 0.015
     primary_spacing_px: float = 30.0
     image_margin_px: float = 10.0
     radius_from_paper_formula: bool = False
     connection_distance_m: float = 0.03
     connection_ray_length_m: float = 0.15
+    secondary_junction_px: float = 8.0
+    secondary_junction_on_mask: float = 0.9
     secondary_min_points: int = 3
     secondary_merge_distance_m: float = 0.01
     secondary_merge_angle_deg: float = 45.0
@@ -117,6 +131,7 @@ class ModelerConfig:
             "secondary_trust_min",
             "secondary_min_view_angle_deg",
             "primary_depth_gate_m",
+            "primary_front_depth_gate_m",
         )
         positive = [
             f.name
@@ -124,11 +139,16 @@ class ModelerConfig:
             if f.name not in not_positive and not isinstance(getattr(self, f.name), bool)
         ]
         require_positive(self, *positive, finite=False)
-        for name in ("consistency_min_fraction", "ransac_min_inlier_fraction"):
+        for name in (
+            "consistency_min_fraction",
+            "ransac_min_inlier_fraction",
+            "secondary_junction_on_mask",
+        ):
             if getattr(self, name) > 1:
                 raise ValueError(f"ModelerConfig.{name} is a fraction in (0, 1]")
-        if not self.primary_depth_gate_m >= 0.0:
-            raise ValueError("ModelerConfig.primary_depth_gate_m must be >= 0")
+        for name in ("primary_depth_gate_m", "primary_front_depth_gate_m"):
+            if not getattr(self, name) >= 0.0:
+                raise ValueError(f"ModelerConfig.{name} must be >= 0")
         if not 0.0 <= self.secondary_min_view_angle_deg < 90.0:
             raise ValueError("ModelerConfig.secondary_min_view_angle_deg must be in [0, 90)")
         if self.tracking_frames < 2:

@@ -280,7 +280,7 @@ class Modeler:
             detections = self._lift_secondaries(frames, curves)
             report.n_secondary_detections = len(detections)
             report.n_new_secondaries = self._secondaries.add_detections(
-                detections, self._primary, frame.T_world_camera[:3, 3]
+                detections, self._primary, frame
             )
             self._secondaries.update_trust(frame)
             report.n_secondaries = len(self._secondaries.models())
@@ -329,7 +329,10 @@ class Modeler:
             )
             if n >= self.config.secondary_min_points:
                 keep = sel[:n]
-                detections.append(SecondaryDetection(lifted.centers[keep], lifted.radii_m[keep]))
+                junction_px = curves.secondaries[k].samples_px[0].copy()
+                detections.append(
+                    SecondaryDetection(lifted.centers[keep], lifted.radii_m[keep], junction_px)
+                )
         return detections
 
     def _inconsistent(self, report: IterationReport, frame: Frame, reason: str) -> IterationReport:
@@ -354,7 +357,9 @@ def _depth_agrees(
     ``primary_depth_gate_m`` in camera depth from the model point nearest to it in the image
     (within ``primary_spacing_px``) lies on something else: a side branch pointing at the camera
     covers the trunk in the mask, and its surface, lifted, dragged the primary up to 14 cm off
-    (measured, seed 1017). Points with no model point near them are kept (new parts of the view).
+    (measured, seed 1017). Points in front of the model (nearer the camera) are held to the
+    tighter ``primary_front_depth_gate_m`` unless most of them are (then the model is off).
+    Points with no model point near them are kept (new parts of the view).
     """
     keep = np.ones(len(centers), dtype=bool)
     model = projected.near_curve
@@ -366,7 +371,13 @@ def _depth_agrees(
     d2 = np.linalg.norm(pixels[:, None, :] - model_px[None, :, :], axis=2)
     nearest = np.argmin(d2, axis=1)
     covered = d2[np.arange(len(centers)), nearest] <= config.primary_spacing_px
-    off = np.abs(depth - model_depth[nearest]) > config.primary_depth_gate_m
+    offset = depth - model_depth[nearest]  # < 0: in front of the model
+    front_gate_m = _front_gate_m(config)
+    if covered.any() and np.mean(-offset[covered] > front_gate_m) > 0.5:
+        # Most new points lie in front of the model: the model is off (a rotation shows it from
+        # a new side), not covered by a branch, which hides a part of the primary only.
+        front_gate_m = config.primary_depth_gate_m
+    off = (offset > config.primary_depth_gate_m) | (-offset > front_gate_m)
     keep = ~(covered & off)
     anchored = np.flatnonzero(covered & keep)
     if len(anchored) == 0:
@@ -378,11 +389,19 @@ def _depth_agrees(
         beyond = beyond[~covered[beyond]]
         last = depth[first]
         for k, i in enumerate(beyond):
-            if abs(depth[i] - last) > config.primary_depth_gate_m:
+            change = depth[i] - last
+            if change > config.primary_depth_gate_m or -change > front_gate_m:
                 keep[beyond[k:]] = False
                 break
             last = depth[i]
     return keep
+
+
+def _front_gate_m(config: ModelerConfig) -> float:
+    """The depth gate for points in front of the model (``primary_front_depth_gate_m``, where
+    set, else ``primary_depth_gate_m``)."""
+    front = config.primary_front_depth_gate_m
+    return front if front > 0 else config.primary_depth_gate_m
 
 
 def _plausible_prefix(
