@@ -1,9 +1,12 @@
 """Why a side branch was missed: how well the scan's views showed it (simulation only).
 
 During a scan :class:`BranchVisibility` counts, in every rendered frame, the instance-label pixels
-of each ground-truth secondary. The labels are a visibility render: a branch hidden behind the
-primary shows only the pixels that stick out of the primary's silhouette. It keeps, per branch,
-the most pixels any frame showed and the camera's rotation about the branch then.
+of each ground-truth secondary outside the primary's silhouette. The labels are a visibility
+render: a branch hidden behind the primary shows only the pixels that stick out of it. A branch in
+front of the primary covers it, and the mask, one class for both, cannot tell them apart there:
+only its pixels outside the silhouette the primary has on its own (drawn from the ground truth)
+count. It keeps, per branch, the most pixels any frame showed and the camera's rotation about the
+branch then.
 
 :func:`branch_rows` turns that and the metrics into one row per ground-truth secondary and
 classifies each miss:
@@ -20,12 +23,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from branch_gym.control import heading_rad
 from branch_gym.sim.scene.tree_scene import FIRST_SECONDARY_LABEL
-from branch_gym.sim.tree.ground_truth import TreeGT
+from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 from branch_gym.sim.validation import require_positive
+from recon.camera import CameraIntrinsics, project_points
 from recon.metrics import TreeMetrics
 
 MISS_SEEN = "seen"
@@ -41,47 +46,105 @@ class AttributionConfig:
         seen_min_pixels: Visible pixels in one frame that make a branch seen (our choice: 300,
             a 2D candidate of the paper's minimum length, 20 px, at the apparent width of a
             4 mm branch at z_target, ~16 px: anything smaller the 2D stage drops by design).
+        silhouette_margin_px: The primary's silhouette is drawn this much wider than its
+            projected radius (our choice: the renderer's edge pixels).
     """
 
     seen_min_pixels: int = 300
+    silhouette_margin_px: float = 1.0
 
     def __post_init__(self) -> None:
-        require_positive(self, "seen_min_pixels")
+        require_positive(self, "seen_min_pixels", "silhouette_margin_px")
 
 
 class BranchVisibility:
-    """Per ground-truth secondary: the most label pixels in any frame and the view angle then.
+    """Per ground-truth secondary: the most pixels outside the primary's silhouette in any frame
+    and the view angle then.
+
+    Args:
+        intrinsics: The rendering camera's intrinsics (to draw the primary's silhouette).
+        config: The silhouette margin.
 
     Attributes:
-        peak_pixels: (G,) most visible pixels of each secondary in one frame.
+        peak_pixels: (G,) most visible pixels of each secondary outside the primary's silhouette
+            in one frame.
         peak_view_angle_deg: (G,) the camera's yaw from its home heading in that frame (deg,
             NaN while never visible).
         frames: Frames observed.
     """
 
-    def __init__(self) -> None:
+    def __init__(
+        self,
+        intrinsics: CameraIntrinsics | None = None,
+        config: AttributionConfig | None = None,
+    ) -> None:
+        self.intrinsics = intrinsics or CameraIntrinsics.from_fov()
+        self.config = config or AttributionConfig()
         self.reset(0, np.eye(4))
 
-    def reset(self, n_secondaries: int, T_world_camera_home: np.ndarray) -> None:
-        """Start a scan of a tree with ``n_secondaries`` secondaries from the home pose."""
+    def reset(
+        self,
+        n_secondaries: int,
+        T_world_camera_home: np.ndarray,
+        primary: BranchGT | None = None,
+    ) -> None:
+        """Start a scan of a tree with ``n_secondaries`` secondaries from the home pose.
+
+        Args:
+            n_secondaries: Ground-truth secondaries of the tree.
+            T_world_camera_home: (4, 4) camera pose at the start (the rotation reference).
+            primary: The tree's ground-truth primary; None counts every label pixel.
+        """
         self.peak_pixels = np.zeros(n_secondaries, np.int64)
         self.peak_view_angle_deg = np.full(n_secondaries, np.nan)
         self.frames = 0
         self._home_heading_rad = heading_rad(T_world_camera_home)
+        self._primary = primary
 
     def observe(self, labels: np.ndarray, T_world_camera: np.ndarray) -> None:
-        """Count each secondary's pixels in one rendered (H, W) instance-label image."""
+        """Count each secondary's pixels outside the primary's silhouette in one rendered (H, W)
+        instance-label image."""
         self.frames += 1
         n = len(self.peak_pixels)
         if n == 0:
             return
-        counts = np.bincount(labels.ravel(), minlength=FIRST_SECONDARY_LABEL + n)
-        pixels = counts[FIRST_SECONDARY_LABEL : FIRST_SECONDARY_LABEL + n]
+        minlength = FIRST_SECONDARY_LABEL + n
+        pixels = np.bincount(labels.ravel(), minlength=minlength)[FIRST_SECONDARY_LABEL:minlength]
+        if self._primary is not None and np.any(pixels > self.peak_pixels):
+            # Only then can a count outside the silhouette (never more) beat a peak.
+            outside = labels[~self.primary_silhouette(T_world_camera)]
+            pixels = np.bincount(outside, minlength=minlength)[FIRST_SECONDARY_LABEL:minlength]
         better = pixels > self.peak_pixels
         if better.any():
             turned = math.remainder(heading_rad(T_world_camera) - self._home_heading_rad, math.tau)
             self.peak_pixels[better] = pixels[better]
             self.peak_view_angle_deg[better] = math.degrees(turned)
+
+    def primary_silhouette(self, T_world_camera: np.ndarray) -> np.ndarray:
+        """(H, W) bool: the ground-truth primary's silhouette, as if nothing covered it.
+
+        Discs of the projected radius (plus ``silhouette_margin_px``) at every centerline point
+        in front of the camera: a tube seen from the side (the dense ground truth is ~1 mm, a
+        few pixels, apart).
+        """
+        intrinsics = self.intrinsics
+        silhouette = np.zeros((intrinsics.height, intrinsics.width), np.uint8)
+        if self._primary is None:
+            return silhouette.astype(bool)
+        pixels, depth = project_points(self._primary.points, T_world_camera, intrinsics)
+        radius_px = intrinsics.fx * self._primary.radii / np.maximum(depth, 1e-9)
+        radius_px += self.config.silhouette_margin_px
+        reach = radius_px + 1.0
+        near = (
+            (depth > 0)
+            & (pixels[:, 0] > -reach)
+            & (pixels[:, 0] < intrinsics.width + reach)
+            & (pixels[:, 1] > -reach)
+            & (pixels[:, 1] < intrinsics.height + reach)
+        )
+        for (u, v), r in zip(pixels[near], radius_px[near], strict=True):
+            cv2.circle(silhouette, (round(u), round(v)), round(r), 1, thickness=-1)
+        return silhouette.astype(bool)
 
 
 def branch_rows(

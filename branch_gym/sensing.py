@@ -139,7 +139,7 @@ class Sensor:
         self.segmenter = make_segmenter(segmenter)
         self.intrinsics = intrinsics_from_spec(world.config.camera)
         # How well the views show each ground-truth secondary (simulation only, for scoring).
-        self.visibility = BranchVisibility()
+        self.visibility = BranchVisibility(self.intrinsics)
         self._rng = np.random.default_rng(0)
 
     def reset(self, seed: int) -> None:
@@ -154,7 +154,8 @@ class Sensor:
             self.segmenter.reset()
         tree = self.world.tree
         n_secondaries = 0 if tree is None else len(tree.secondaries)
-        self.visibility.reset(n_secondaries, self.world.T_world_camera)
+        primary = None if tree is None else tree.primary
+        self.visibility.reset(n_secondaries, self.world.T_world_camera, primary)
 
     def capture(self, timestamp_s: float) -> Frame:
         """Render the current view and segment it.

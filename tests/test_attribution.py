@@ -7,7 +7,13 @@ import numpy as np
 import pytest
 
 from agents.factory import make_agent
-from branch_gym.attribution import MISS_NEVER_SEEN, MISS_SEEN, AttributionConfig, branch_rows
+from branch_gym.attribution import (
+    MISS_NEVER_SEEN,
+    MISS_SEEN,
+    AttributionConfig,
+    BranchVisibility,
+    branch_rows,
+)
 from branch_gym.env.scan_env import BranchScanEnv
 from branch_gym.scan import ScanConfig, ScanSession
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
@@ -90,3 +96,39 @@ def test_the_privileged_policy_rotates_to_show_a_branch_hidden_behind_the_primar
     (none_peak, none_rotations), (privileged_peak, privileged_rotations) = results.values()
     assert none_rotations == 0 and none_peak[0] < threshold
     assert privileged_rotations >= 1 and privileged_peak[0] >= threshold  # now seen
+
+
+def test_a_branch_covering_the_primary_counts_only_its_pixels_outside_the_silhouette() -> None:
+    """A branch pointing at the camera lies over the primary: its label pixels are many, but in
+    the mask (one class for both) almost all of them are the primary's silhouette."""
+    every_label = BranchVisibility()  # counts every label pixel: what the silhouette removes
+
+    class CountingBoth(BranchVisibility):
+        def observe(self, labels: np.ndarray, T_world_camera: np.ndarray) -> None:
+            every_label.observe(labels, T_world_camera)
+            super().observe(labels, T_world_camera)
+
+    session = ScanSession(ScanConfig(end_height_m=SCAN_TOP_M, tracker="oracle"))
+    try:
+        session.sensor.visibility = CountingBoth(session.sensor.intrinsics)
+        tree = session.world.reset(0)
+        primary = tree.primary
+        k = int(np.argmin(np.abs(primary.points[:, 2] - BASE_Z_M)))
+        base, radius = primary.points[k], 0.8 * float(primary.radii[k])
+        toward_camera = _straight(base, np.array([0.0, -1.0, 0.05]), radius)
+        tree = session.reset(0, TreeGT(primary, [toward_camera], [], tree.seed))
+        every_label.reset(1, session.world.T_world_camera)
+        while not session.done:
+            session.step(0.0)
+        visibility = session.sensor.visibility
+        silhouette = visibility.primary_silhouette(session.world.T_world_camera)
+    finally:
+        session.close()
+    threshold = AttributionConfig().seen_min_pixels
+    assert every_label.peak_pixels[0] > 3 * threshold  # the label image shows it, over the primary
+    assert visibility.peak_pixels[0] < threshold
+    assert silhouette.any() and silhouette.mean() < 0.5  # a tube, not the whole image
+    rows = branch_rows(
+        tree, evaluate(TreeModel(None, []), tree, scanned_top_z_m=SCAN_TOP_M), visibility
+    )
+    assert rows[0]["miss"] == MISS_NEVER_SEEN
