@@ -108,12 +108,11 @@ class BranchVisibility:
         n = len(self.peak_pixels)
         if n == 0:
             return
-        minlength = FIRST_SECONDARY_LABEL + n
-        pixels = np.bincount(labels.ravel(), minlength=minlength)[FIRST_SECONDARY_LABEL:minlength]
+        pixels = _secondary_pixel_counts(labels, n)
         if self._primary is not None and np.any(pixels > self.peak_pixels):
             # Only then can a count outside the silhouette (never more) beat a peak.
             outside = labels[~self.primary_silhouette(T_world_camera)]
-            pixels = np.bincount(outside, minlength=minlength)[FIRST_SECONDARY_LABEL:minlength]
+            pixels = _secondary_pixel_counts(outside, n)
         better = pixels > self.peak_pixels
         if better.any():
             turned = math.remainder(heading_rad(T_world_camera) - self._home_heading_rad, math.tau)
@@ -145,6 +144,12 @@ class BranchVisibility:
         for (u, v), r in zip(pixels[near], radius_px[near], strict=True):
             cv2.circle(silhouette, (round(u), round(v)), round(r), 1, thickness=-1)
         return silhouette.astype(bool)
+
+
+def _secondary_pixel_counts(labels: np.ndarray, n_secondaries: int) -> np.ndarray:
+    """(G,) pixels of each secondary label among ``labels`` (any shape)."""
+    secondary = labels[labels >= FIRST_SECONDARY_LABEL] - FIRST_SECONDARY_LABEL
+    return np.bincount(secondary, minlength=n_secondaries)[:n_secondaries]
 
 
 def branch_rows(

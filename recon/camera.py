@@ -117,14 +117,28 @@ def check_pose(T: np.ndarray, name: str = "T_world_camera") -> np.ndarray:
     T = np.asarray(T, dtype=float)
     if T.shape != (4, 4):
         raise ValueError(f"{name} must have shape (4, 4), got {T.shape}")
-    if not np.all(np.isfinite(T)):
+    if not np.isfinite(T).all():
         raise ValueError(f"{name} contains NaN or infinite values")
     R = T[:3, :3]
-    if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
+    # np.allclose(R R^T, I, atol=1e-6) and det(R) > 0, written out: this runs for every frame.
+    if (np.abs(R @ R.T - _IDENTITY3) > _ORTHONORMAL_TOLERANCE).any() or _det3(R) < 0:
         raise ValueError(f"{name} rotation block is not a proper rotation matrix")
-    if not np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]):
+    if (np.abs(T[3] - _LAST_ROW) > _LAST_ROW_TOLERANCE).any():
         raise ValueError(f"{name} last row must be [0, 0, 0, 1]")
     return T
+
+
+_IDENTITY3 = np.eye(3)
+# np.allclose's tolerance (atol + rtol |b|) against the identity with atol 1e-6, rtol 1e-5.
+_ORTHONORMAL_TOLERANCE = 1e-6 + 1e-5 * _IDENTITY3
+_LAST_ROW = np.array([0.0, 0.0, 0.0, 1.0])
+_LAST_ROW_TOLERANCE = 1e-8 + 1e-5 * _LAST_ROW  # np.allclose's defaults
+
+
+def _det3(R: np.ndarray) -> float:
+    """Determinant of a (3, 3) matrix (the triple product of its rows)."""
+    (a, b, c), (d, e, f), (g, h, i) = R.tolist()
+    return a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
 
 
 def invert_pose(T: np.ndarray) -> np.ndarray:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,9 +46,7 @@ class Frame:
         A depth oracle tracker can project points into such a frame, which lets a simulator
         render only the frames that a modeling iteration runs on (fast training).
         """
-        h, w = intrinsics.height, intrinsics.width
-        blank_rgb = np.zeros((h, w, 3), np.uint8)
-        blank_mask = np.zeros((h, w), bool)
+        blank_rgb, blank_mask = _blank_images(intrinsics.height, intrinsics.width)
         return cls(blank_rgb, blank_mask, T_world_camera, intrinsics, timestamp_s, None, False)
 
     def __post_init__(self) -> None:
@@ -69,6 +68,14 @@ class Frame:
         rgb = self.rgb.astype(np.float32)
         gray = 0.299 * rgb[..., 0] + 0.587 * rgb[..., 1] + 0.114 * rgb[..., 2]
         return np.clip(gray + 0.5, 0, 255).astype(np.uint8)
+
+
+@functools.lru_cache(maxsize=4)
+def _blank_images(height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """Read-only black (H, W, 3) image and empty (H, W) mask, shared by every pose-only frame."""
+    rgb, mask = np.zeros((height, width, 3), np.uint8), np.zeros((height, width), bool)
+    rgb.flags.writeable = mask.flags.writeable = False
+    return rgb, mask
 
 
 def as_binary_mask(mask: np.ndarray, shape: tuple[int, int] | None = None) -> np.ndarray:

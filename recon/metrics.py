@@ -267,6 +267,9 @@ class TruthIndex:
         secondary_samples: Each GT secondary resampled every ``secondary_resample_step_m``.
         secondary_trees: KD-trees of those samples.
         config: The metrics configuration it was built for.
+        scored: What :func:`evaluate` worked out for each reconstructed secondary of the last
+            call (by the identity of its points and radii arrays): a model scored after every
+            step keeps most of its branches, and their work is not redone.
     """
 
     primary: Branch
@@ -275,6 +278,26 @@ class TruthIndex:
     secondary_samples: list[Branch]
     secondary_trees: list[cKDTree]
     config: MetricsConfig
+    scored: dict[int, _ScoredBranch] = field(default_factory=dict, compare=False, repr=False)
+
+
+@dataclass
+class _ScoredBranch:
+    """One reconstructed secondary against every GT branch (:attr:`TruthIndex.scored`).
+
+    Attributes:
+        points: The branch's (N, 3) points (the key's array, kept alive and compared by identity).
+        radii: Its (N,) radii.
+        samples: Resampled (points, radii).
+        median_m: (G,) median distance to each GT branch where it is a candidate, else inf.
+        pairs: Overlap errors against GT branch j (:func:`_pair_errors`), filled when matched.
+    """
+
+    points: np.ndarray
+    radii: np.ndarray
+    samples: Branch
+    median_m: np.ndarray
+    pairs: dict[int, tuple[np.ndarray, np.ndarray, float, float]] = field(default_factory=dict)
 
 
 def index_truth(truth: TreeLike, config: MetricsConfig | None = None) -> TruthIndex:
@@ -453,7 +476,6 @@ def _secondary_metrics(
     Returns:
         The secondary-branch fields of :class:`TreeMetrics`, by name.
     """
-    step = config.secondary_resample_step_m
     gt, gt_samples, gt_trees = index.secondaries, index.secondary_samples, index.secondary_trees
     base_z = np.array([points[0, 2] for points, _ in gt])
     in_scope = (base_z >= config.band_min_z_m) & (base_z <= top_m + config.gt_base_margin_m)
@@ -463,18 +485,16 @@ def _secondary_metrics(
         if len(points) >= 2
         and np.linalg.norm((points[-1] - points[0])[:2]) > config.min_horizontal_length_m
     ]
-    rec_samples = {i: _resample(reconstructed[i], step_m=step) for i in kept}
-
-    median_m = np.full((len(kept), len(gt)), np.inf)  # inf: not a candidate
-    max_angle_rad = np.radians(config.max_match_angle_deg)
-    for row, i in enumerate(kept):
-        rec_direction = reconstructed[i][0][-1] - reconstructed[i][0][0]
-        for j, (gt_points, _) in enumerate(gt):
-            if _angle_rad(rec_direction, gt_points[-1] - gt_points[0]) > max_angle_rad:
-                continue
-            distance_m = np.median(gt_trees[j].query(rec_samples[i][0])[0])
-            if distance_m < config.max_match_median_distance_m:
-                median_m[row, j] = distance_m
+    scored = {}
+    for i in kept:
+        points, radii = reconstructed[i]
+        entry = index.scored.get(id(points))
+        if entry is None or entry.points is not points or entry.radii is not radii:
+            entry = _score_branch(points, radii, gt, gt_trees, config)
+        scored[i] = entry
+    index.scored.clear()
+    index.scored.update({id(entry.points): entry for entry in scored.values()})
+    median_m = np.array([scored[i].median_m for i in kept]).reshape(len(kept), len(gt))
     candidate = np.isfinite(median_m)
     # Non-candidates cost more than all candidates together: the most pairs, then the least cost.
     rows, cols = linear_sum_assignment(
@@ -488,7 +508,7 @@ def _secondary_metrics(
     n_duplicates = int(np.sum(np.any(unassigned[:, in_scope], axis=1)))
     n_spurious = int(np.sum(~np.any(unassigned, axis=1)))
     residuals, radius_errors, completeness, pair_residuals = _pair_errors(
-        matches, rec_samples, gt_samples, gt_trees, config.completeness_tolerance_m
+        matches, scored, gt_samples, gt_trees, config.completeness_tolerance_m
     )
     return {
         "gt_in_scope": in_scope,
@@ -506,9 +526,32 @@ def _secondary_metrics(
     }
 
 
+def _score_branch(
+    points: np.ndarray,
+    radii: np.ndarray,
+    gt: list[Branch],
+    gt_trees: list[cKDTree],
+    config: MetricsConfig,
+) -> _ScoredBranch:
+    """Resample a reconstructed secondary; its median distance to each GT branch it is a
+    candidate for (direction within ``max_match_angle_deg``, median below
+    ``max_match_median_distance_m``), inf for the others."""
+    samples = _resample((points, radii), step_m=config.secondary_resample_step_m)
+    median_m = np.full(len(gt), np.inf)
+    max_angle_rad = np.radians(config.max_match_angle_deg)
+    direction = points[-1] - points[0]
+    for j, (gt_points, _) in enumerate(gt):
+        if _angle_rad(direction, gt_points[-1] - gt_points[0]) > max_angle_rad:
+            continue
+        distance_m = np.median(gt_trees[j].query(samples[0])[0])
+        if distance_m < config.max_match_median_distance_m:
+            median_m[j] = distance_m
+    return _ScoredBranch(points, radii, samples, median_m)
+
+
 def _pair_errors(
     matches: list[tuple[int, int]],
-    rec_samples: dict[int, Branch],
+    scored: dict[int, _ScoredBranch],
     gt_samples: list[Branch],
     gt_trees: list[cKDTree],
     tolerance_m: float,
@@ -526,15 +569,23 @@ def _pair_errors(
     residuals, radius_errors = [np.zeros(0)], [np.zeros(0)]
     completeness, pair_residual = np.zeros(len(matches)), np.full(len(matches), np.nan)
     for k, (j, i) in enumerate(matches):
-        points, radii = rec_samples[i]
-        gt_points, gt_radii = gt_samples[j]
-        distance, nearest = gt_trees[j].query(points)
-        inside = (nearest > 0) & (nearest < len(gt_points) - 1)
-        residuals.append(distance[inside])
-        radius_errors.append(radii[inside] - gt_radii[nearest[inside]])
-        if inside.any():
-            pair_residual[k] = float(np.mean(distance[inside]))
-        completeness[k] = np.mean(cKDTree(points).query(gt_points)[0] <= tolerance_m)
+        entry = scored[i]
+        if j not in entry.pairs:
+            points, radii = entry.samples
+            gt_points, gt_radii = gt_samples[j]
+            distance, nearest = gt_trees[j].query(points)
+            inside = (nearest > 0) & (nearest < len(gt_points) - 1)
+            mean_m = float(np.mean(distance[inside])) if inside.any() else np.nan
+            covered = float(np.mean(cKDTree(points).query(gt_points)[0] <= tolerance_m))
+            entry.pairs[j] = (
+                distance[inside],
+                radii[inside] - gt_radii[nearest[inside]],
+                covered,
+                mean_m,
+            )
+        pair_distance, pair_radius_errors, completeness[k], pair_residual[k] = entry.pairs[j]
+        residuals.append(pair_distance)
+        radius_errors.append(pair_radius_errors)
     return np.concatenate(residuals), np.concatenate(radius_errors), completeness, pair_residual
 
 

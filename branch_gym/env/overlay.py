@@ -89,14 +89,24 @@ def draw_polyline(
     # A branch point just in front of the lens projects with a huge radius: no line needs to be
     # wider than twice the canvas diagonal to cover it (OpenCV refuses widths above 32767).
     max_thickness = int(2 * np.hypot(*canvas.shape[:2])) + 1
-    for i in range(len(pixels) - 1):
-        if not (ok[i] and ok[i + 1]):
-            continue
-        half = 0.5 * (radii_px[i] + radii_px[i + 1]) + extra_halfwidth_px
-        thickness = int(np.clip(np.rint(2.0 * half), 1, max_thickness))
+    if len(pixels) < 2:
+        return
+    half = 0.5 * (radii_px[:-1] + radii_px[1:]) + extra_halfwidth_px
+    thickness = np.clip(np.rint(2.0 * half), 1, max_thickness).astype(int)
+    # Segments whose box, grown by their width, misses the canvas draw nothing: skip them.
+    start_px, end_px = fixed[:-1] / _SCALE, fixed[1:] / _SCALE
+    reach = thickness + 1.0
+    height, width = canvas.shape[:2]
+    touches = (
+        (np.maximum(start_px[:, 0], end_px[:, 0]) >= -reach)
+        & (np.minimum(start_px[:, 0], end_px[:, 0]) <= width - 1 + reach)
+        & (np.maximum(start_px[:, 1], end_px[:, 1]) >= -reach)
+        & (np.minimum(start_px[:, 1], end_px[:, 1]) <= height - 1 + reach)
+    )
+    for i in np.flatnonzero(ok[:-1] & ok[1:] & touches).tolist():
         start = (int(fixed[i, 0]), int(fixed[i, 1]))
         end = (int(fixed[i + 1, 0]), int(fixed[i + 1, 1]))
-        cv2.line(canvas, start, end, colour, thickness, cv2.LINE_8, _SHIFT)
+        cv2.line(canvas, start, end, colour, int(thickness[i]), cv2.LINE_8, _SHIFT)
 
 
 def draw_model(

@@ -263,8 +263,8 @@ class UR5e:
         linear, angular = self._bullet_jacobian(
             self.body_id, self._camera_link, [0.0, 0.0, 0.0], q.tolist(), _ZEROS6, _ZEROS6
         )
-        R_world_base = self._T_world_base[:3, :3]
-        return np.vstack([R_world_base @ np.asarray(linear), R_world_base @ np.asarray(angular)])
+        rows = self._T_world_base[:3, :3] @ np.array((linear, angular))  # (2, 3, 6)
+        return rows.reshape(6, N_JOINTS)
 
     def camera_jacobian(self) -> np.ndarray:
         """(6, 6) Jacobian mapping joint rates (rad/s) to the camera twist [v, w] in camera axes."""

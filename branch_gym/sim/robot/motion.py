@@ -8,7 +8,8 @@ was and says why (:class:`MotionStatus`): singularity, joint limit, joint speed 
 :class:`CameraMotion` does this for :class:`branch_gym.sim.robot.arm.UR5e`, which owns one and
 hands it everything it uses explicitly: the configuration and joint limit, the current
 :class:`KinematicState`, a Jacobian provider (joint angles -> world-axes Jacobian) and a checked
-commit of a new joint vector. It holds no state of its own.
+commit of a new joint vector. Its only state is the manipulability of the last Jacobian it
+committed (the next step starts there).
 """
 
 from __future__ import annotations
@@ -129,6 +130,8 @@ class CameraMotion:
         self._state = state
         self._world_jacobian = world_jacobian
         self._commit = commit
+        # (Jacobian committed by the last step, its manipulability): the next step's start.
+        self._committed: tuple[np.ndarray, float] | None = None
 
     def apply_camera_twist(self, twist_camera: np.ndarray, dt_s: float) -> MotionStatus:
         """Move the camera with a constant camera-frame twist for ``dt_s`` seconds.
@@ -165,20 +168,21 @@ class CameraMotion:
 
     def _joint_rates(
         self, J_world: np.ndarray, R_world_camera: np.ndarray, twist: np.ndarray
-    ) -> tuple[np.ndarray, float]:
-        """Damped least-squares joint rates for a camera-frame twist, and the manipulability."""
+    ) -> tuple[np.ndarray, float | None]:
+        """Damped least-squares joint rates for a camera-frame twist, and the manipulability
+        (None where the direct solve applies: it is not needed then, see :meth:`_step`)."""
         if self.config.dls_direct_solve:
             direct = self._undamped_joint_rates(J_world, R_world_camera, twist)
             if direct is not None:
-                return direct
+                return direct, None
         U, sigma, Vt = np.linalg.svd(camera_frame_jacobian(J_world, R_world_camera))
         gains = sigma / (sigma**2 + self._damping_sq(sigma[-1]))
         return Vt.T @ (gains * (U.T @ twist)), float(np.prod(sigma))
 
     def _undamped_joint_rates(
         self, J_world: np.ndarray, R_world_camera: np.ndarray, twist: np.ndarray
-    ) -> tuple[np.ndarray, float] | None:
-        """``J^-1 twist`` and ``|det J|`` where the damping is provably zero, else None.
+    ) -> np.ndarray | None:
+        """``J^-1 twist`` where the damping is provably zero, else None.
 
         The camera-frame Jacobian is the world one with its rows rotated, so its inverse maps
         the twist rotated to world axes. ``||J^-1||_2 <= ||J^-1||_F``: a Frobenius norm of at
@@ -192,7 +196,7 @@ class CameraMotion:
         if float(np.sum(J_inv * J_inv)) * self.config.damping_sigma_band**2 > 1.0:
             return None
         twist_world = np.concatenate([R_world_camera @ twist[:3], R_world_camera @ twist[3:]])
-        return J_inv @ twist_world, manipulability(J_world)
+        return J_inv @ twist_world
 
     def _step(self, twist: np.ndarray, step_s: float) -> MotionStatus:
         """One checked control step, integrated with the midpoint rule (second order)."""
@@ -200,6 +204,12 @@ class CameraMotion:
         q, T_world_camera, J_world = self._state()
         R_world_camera = T_world_camera[:3, :3]
         q_rate, manipulability_now = self._joint_rates(J_world, R_world_camera, twist)
+        if manipulability_now is None:  # |det J|: the last step's, when it committed this J
+            committed = self._committed
+            if committed is not None and committed[0] is J_world:
+                manipulability_now = committed[1]
+            else:
+                manipulability_now = manipulability(J_world)
         # Midpoint: the camera's mid-step orientation is known from the commanded body rate.
         q_mid = q + 0.5 * step_s * q_rate
         R_mid = R_world_camera @ rotation_exp(0.5 * step_s * twist[3:])
@@ -228,6 +238,7 @@ class CameraMotion:
         else:
             contact = self._commit(q_next, J_next)
             if contact is None:
+                self._committed = (J_next, manipulability_next)
                 return MotionStatus(True, "ok", manipulability_next)
             reason, detail = "collision", contact
         return MotionStatus(False, reason, manipulability_now, detail=detail)
