@@ -317,3 +317,22 @@ def test_a_prepared_truth_index_gives_the_same_metrics() -> None:
     assert plain.to_json_dict() == prepared.to_json_dict()
     with pytest.raises(ValueError, match="another MetricsConfig"):
         evaluate(model, truth, MetricsConfig(band_min_z_m=0.3), truth_index=index)
+
+
+def test_a_reused_index_keeps_unchanged_branches_and_rescores_changed_ones() -> None:
+    """Scoring after every step: the work on branches the model kept is reused, a branch the
+    model refitted (new arrays) is scored anew, and the numbers are those of a fresh index."""
+    truth = _truth()
+    index = index_truth(truth)
+    model = _model(truth.primary, truth.secondaries[:2])
+    first = evaluate(model, truth, truth_index=index)
+    kept = index.scored[id(model.secondaries[0].points)]
+    shifted = BranchModel(
+        model.secondaries[1].points + np.array([0.03, 0.0, 0.0]), model.secondaries[1].radii
+    )
+    moved = TreeModel(model.primary, [model.secondaries[0], shifted])
+    second = evaluate(moved, truth, truth_index=index)
+    assert index.scored[id(model.secondaries[0].points)] is kept  # reused
+    assert id(model.secondaries[1].points) not in index.scored  # dropped with its branch
+    assert second.to_json_dict() == evaluate(moved, truth).to_json_dict()
+    assert first.n_matched == 2 and second.n_matched == 1 and second.n_spurious == 1

@@ -158,13 +158,12 @@ class CameraMotion:
             raise ValueError(f"dt_s must be positive and finite, got {dt_s}")
         n_steps = max(1, math.ceil(dt_s / self.config.control_time_step_s - 1e-9))
         step_s = dt_s / n_steps
-        status = MotionStatus(True, "ok", manipulability(self._state().J_world))
         for k in range(n_steps):
             status = self._step(twist, step_s)
             if not status.ok:
                 logger.debug("camera twist stopped: %s (%s)", status.reason, status.detail)
                 return replace(status, elapsed_s=k * step_s)
-        return replace(status, elapsed_s=dt_s)
+        return MotionStatus(True, "ok", status.manipulability, dt_s)
 
     def _joint_rates(
         self, J_world: np.ndarray, R_world_camera: np.ndarray, twist: np.ndarray
