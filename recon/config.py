@@ -42,9 +42,9 @@ class ModelerConfig:
             trunk in the mask and was lifted as primary; 0 disables).
         primary_front_depth_gate_m: The same gate for points in front of the model (nearer the
             camera), and for steps toward the camera beyond it (ours, measured: at 3 cm a branch
-            approaching the camera over the trunk still pulled the primary 3-5 cm toward it, at
-            1.5 cm no longer; the gate behind the model stays at 3 cm: at 1.5-2 cm a scan lost
-            the branch after a rotation, seed 40). 0 uses ``primary_depth_gate_m``.
+            approaching the camera over the trunk still pulled the primary 3-5 cm toward it,
+            seeds 18 and 130, at 1.5 cm no longer; behind the model the gate stays at 3 cm).
+            0 uses ``primary_depth_gate_m``.
         primary_spacing_px: Target spacing of model points when projected (paper IV: ~30 px).
         image_margin_px: Model points are "visible" when projected this far inside the image
             (reference.md: the 2D stage drops pixels within 10 px of the border).
