@@ -126,11 +126,8 @@ class SecondaryBranches:
             if branch.model is None:
                 continue
             observed = branch.model.points[branch.n_extension :]  # not the bridged junction
-            pixels, depth = project_points(observed, frame.T_world_camera, frame.intrinsics)
-            visible = (depth > 0) & frame.intrinsics.in_image(pixels, cfg.image_margin_px)
-            if visible.sum() >= 2:
-                px = np.rint(pixels[visible]).astype(int)
-                on_mask = frame.mask[px[:, 1], px[:, 0]].mean()
+            on_mask, visible = _mask_fraction(observed, frame, cfg.image_margin_px)
+            if visible >= 2:
                 branch.trust += 1 if on_mask >= 0.5 else -1
                 branch.model.trust = branch.trust
             if branch.trust >= cfg.secondary_trust_min:
@@ -213,12 +210,9 @@ class SecondaryBranches:
         along = junction + np.linspace(0.0, 1.0, n + 1)[1:-1, None] * run
         if len(along) == 0:
             return junction
-        run_px, run_depth = project_points(along, frame.T_world_camera, frame.intrinsics)
-        inside = (run_depth > 0) & frame.intrinsics.in_image(run_px)
-        if not inside.any():
+        on_mask, visible = _mask_fraction(along, frame, 0.0)
+        if visible == 0:
             return None
-        px = np.rint(run_px[inside]).astype(int)
-        on_mask = frame.mask[px[:, 1], px[:, 0]].mean()
         return junction if on_mask >= cfg.secondary_junction_on_mask else None
 
     def _merge_observations(
@@ -316,6 +310,18 @@ class SecondaryBranches:
             return samples, radii, 0
         run = np.linspace(junction, samples[0], n + 1)[:-1]
         return np.vstack([run, samples]), np.concatenate([np.full(n, radii[0]), radii]), n
+
+
+def _mask_fraction(points: np.ndarray, frame: Frame, margin_px: float) -> tuple[float, int]:
+    """(share of ``points`` that project onto ``frame``'s mask, how many project into the image
+    at least ``margin_px`` from its border); the share is NaN when none do."""
+    pixels, depth = project_points(points, frame.T_world_camera, frame.intrinsics)
+    visible = (depth > 0) & frame.intrinsics.in_image(pixels, margin_px)
+    n = int(visible.sum())
+    if n == 0:
+        return float("nan"), 0
+    px = np.rint(pixels[visible]).astype(int)
+    return float(frame.mask[px[:, 1], px[:, 0]].mean()), n
 
 
 def _direction(points: np.ndarray) -> np.ndarray:
