@@ -16,9 +16,13 @@ rollouts of ``RECIPE_N_STEPS`` per env.
 ``train_steps_per_s_fast``: the training mode (oracle tracker, pose-only tracking frames) with the
 fixed action mix of :mod:`branch_gym.training.action_mix` (one rotation every 10 steps, whatever
 the policy sends), the default rollout length (``PPOConfig.n_steps``, 256 per env) and one update;
-the learner's torch uses ``N_ENVS`` threads (the env workers wait during the update). Compare it
-with twice ``env_steps_per_s_mix`` (bench_env, one core, the same mix): ``train_over_env_fast`` is
-their ratio (target >= 0.8).
+the learner's torch threads follow ``train.py`` (:class:`TorchThreadsCallback`: one while the
+workers step, ``UPDATE_TORCH_THREADS`` in the update). Compare it with twice
+``env_steps_per_s_mix`` (bench_env, one core, the same mix): ``train_over_env_fast`` (bench/run.py,
+both figures of one run) is their ratio (target >= 0.8).
+``train_steps_per_s_fast_4envs`` is the same 512 steps with 4 env processes on the same cores: a
+step that rotates costs ~8x one that does not, and ``SubprocVecEnv`` steps its envs in lockstep,
+so with 2 envs one core idles while the other finishes a rotation; more envs than cores fill it.
 """
 
 from __future__ import annotations
@@ -27,9 +31,10 @@ import functools
 import time
 
 from branch_gym.training.action_mix import FixedActionMix
+from branch_gym.training.callbacks import TorchThreadsCallback
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.envs import make_env, make_train_env, policy_class
-from branch_gym.training.train import apply_first_action_logit
+from branch_gym.training.train import UPDATE_TORCH_THREADS, apply_first_action_logit
 
 N_ENVS = 2
 # Our choice: one rollout of 12 steps per env and one update per tracker keep the whole bench
@@ -41,6 +46,7 @@ SEED = 0
 RECIPE_N_STEPS = 64
 RECIPE_HOLD_LOGIT = 3.0
 FAST_N_STEPS = PPOConfig().n_steps  # the shipped recipe's rollout length
+FAST_STEPS = FAST_N_STEPS * N_ENVS  # steps of the fast figures (one rollout, one update)
 
 
 def _mixed_env(config: TrainConfig, rank: int) -> FixedActionMix:
@@ -48,28 +54,28 @@ def _mixed_env(config: TrainConfig, rank: int) -> FixedActionMix:
     return FixedActionMix(make_env(config, rank))
 
 
-def train_steps_per_s_fast(n_steps: int = FAST_N_STEPS) -> float:
-    """Env steps per second of ``PPO.learn`` (2 envs, training mode, fixed action mix)."""
+def train_steps_per_s_fast(n_envs: int = N_ENVS) -> float:
+    """Env steps per second of ``PPO.learn`` (training mode, fixed action mix, ``FAST_STEPS``)."""
     import torch
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
     threads = torch.get_num_threads()
-    torch.set_num_threads(N_ENVS)
-    ppo = PPOConfig(n_steps=n_steps)
-    steps = n_steps * N_ENVS
+    ppo = PPOConfig(n_steps=FAST_STEPS // n_envs)
+    steps = ppo.n_steps * n_envs
     config = TrainConfig(
-        timesteps=steps, n_envs=N_ENVS, seed=SEED, tracker="oracle", eval_every=0, ppo=ppo,
+        timesteps=steps, n_envs=n_envs, seed=SEED, tracker="oracle", eval_every=0, ppo=ppo,
         render_tracking_frames=False, normalize=False,
     )  # fmt: skip
-    venv = SubprocVecEnv([functools.partial(_mixed_env, config, rank) for rank in range(N_ENVS)])
+    venv = SubprocVecEnv([functools.partial(_mixed_env, config, rank) for rank in range(n_envs)])
     try:
         model = PPO(
             policy_class(venv.observation_space), venv, seed=SEED, device="cpu", verbose=0,
             **ppo.sb3_kwargs(venv.observation_space),
         )  # fmt: skip
+        callback = TorchThreadsCallback(1, UPDATE_TORCH_THREADS)
         start = time.perf_counter()
-        model.learn(total_timesteps=steps)
+        model.learn(total_timesteps=steps, callback=callback)
         elapsed = time.perf_counter() - start
     finally:
         venv.close()
@@ -114,6 +120,7 @@ def _train_steps_per_s(tracker: str, n_steps: int = BENCH_N_STEPS, **recipe: obj
 def run() -> dict[str, float]:
     return {
         "train_steps_per_s_fast": train_steps_per_s_fast(),
+        "train_steps_per_s_fast_4envs": train_steps_per_s_fast(n_envs=4),
         "train_steps_per_s": _train_steps_per_s("lk"),
         "train_steps_per_s_oracle": _train_steps_per_s("oracle"),
         "train_steps_per_s_trigger_recipe": _train_steps_per_s(

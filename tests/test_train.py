@@ -23,7 +23,7 @@ from agents.ppo import (
 )
 from branch_gym.evaluation.episodes import run_episode, run_trial
 from branch_gym.scan import ScanConfig
-from branch_gym.training.callbacks import scan_metrics
+from branch_gym.training.callbacks import TorchThreadsCallback, scan_metrics
 from branch_gym.training.checkpoints import CheckpointError, read_checkpoint
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.envs import (
@@ -156,6 +156,24 @@ def test_scan_metrics_skip_undefined_values() -> None:
     row = {"missed_pct": None, "spurious_pct": 0.0, "rotations": 2, "scan_time_s": 20.0}
     metrics = scan_metrics({**row, "failure": "lost_branch"})
     assert metrics == {"spurious_pct": 0.0, "rotations": 2.0, "scan_time_s": 20.0, "failed": 1.0}
+
+
+def test_torch_threads_follow_the_training_phase() -> None:
+    import torch
+    from stable_baselines3 import PPO
+
+    initial = torch.get_num_threads()
+    callback = TorchThreadsCallback(rollout_threads=1, update_threads=2)
+    callback.init_callback(PPO("MlpPolicy", "CartPole-v1", n_steps=8, batch_size=8, device="cpu"))
+    callback.on_training_start({}, {})
+    callback.on_rollout_start()
+    assert torch.get_num_threads() == 1
+    callback.on_rollout_end()
+    assert torch.get_num_threads() == 2
+    callback.on_training_end()
+    assert torch.get_num_threads() == initial
+    with pytest.raises(ValueError, match="update_threads=0"):
+        TorchThreadsCallback(rollout_threads=1, update_threads=0)
 
 
 def test_policy_class_follows_the_observation_space() -> None:

@@ -1,4 +1,4 @@
-"""Training callbacks: the scan metrics of every finished episode, and a progress bar.
+"""Training callbacks: the scan metrics of every finished episode, torch threads, a progress bar.
 
 :class:`ScanMetricsCallback` reads ``info["final_metrics"]`` (the scan's final row, scored
 against the ground truth) when an episode ends and logs ``SCAN_METRICS``:
@@ -9,6 +9,10 @@ against the ground truth) when an episode ends and logs ``SCAN_METRICS``:
 
 Undefined values (``missed_pct`` of a tree without secondaries is None) are skipped. Episodes
 cut by the env's step limit have no final row and are not counted.
+
+:class:`TorchThreadsCallback` gives the learner's torch one thread while the env workers step
+(the policy's forward pass is ~1 ms; more threads only compete with the workers for the cores)
+and every core during the update, when the workers wait.
 """
 
 from __future__ import annotations
@@ -77,6 +81,55 @@ class ScanMetricsCallback(BaseCallback):
             for fmt in self.logger.output_formats
             if isinstance(fmt, TensorBoardOutputFormat)
         ]
+
+
+class TorchThreadsCallback(BaseCallback):
+    """Torch intra-op threads by phase: few while the env workers step, many in the update.
+
+    Measured on 2 cores (training mode, 2 env processes, 512 steps and one update): 2 threads
+    throughout 33.5 steps/s, 1 throughout 36.4, 1 in rollouts and 2 in the update 37.0 (the
+    forward passes' threads took ~5 ms of each vector step from the workers; the update ran in
+    1.0 s on 2 threads, 1.6 s on 1).
+
+    Args:
+        rollout_threads: Threads while collecting rollouts.
+        update_threads: Threads during the gradient update.
+    """
+
+    def __init__(self, rollout_threads: int, update_threads: int) -> None:
+        super().__init__()
+        if rollout_threads < 1 or update_threads < 1:
+            raise ValueError(
+                f"thread counts must be >= 1, got rollout_threads={rollout_threads}, "
+                f"update_threads={update_threads}"
+            )
+        self.rollout_threads = rollout_threads
+        self.update_threads = update_threads
+        self._initial: int | None = None
+
+    def _on_training_start(self) -> None:
+        import torch
+
+        self._initial = torch.get_num_threads()
+
+    def _on_rollout_start(self) -> None:
+        import torch
+
+        torch.set_num_threads(self.rollout_threads)
+
+    def _on_rollout_end(self) -> None:
+        import torch
+
+        torch.set_num_threads(self.update_threads)
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_training_end(self) -> None:
+        import torch
+
+        if self._initial is not None:
+            torch.set_num_threads(self._initial)
 
 
 class TqdmCallback(BaseCallback):

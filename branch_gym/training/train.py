@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from agents.ppo import algorithm_class, load_model, load_normalizer
-from branch_gym.training.callbacks import ScanMetricsCallback, TqdmCallback
+from branch_gym.training.callbacks import ScanMetricsCallback, TorchThreadsCallback, TqdmCallback
 from branch_gym.training.checkpoints import (
     CheckpointCallback,
     read_checkpoint,
@@ -42,7 +42,10 @@ from branch_gym.training.seeds import eval_tree_seeds, train_seed_range
 
 logger = logging.getLogger(__name__)
 
-_TORCH_THREADS = 1  # one thread: the machine's cores run the env workers
+_TORCH_THREADS = 1  # one thread while the env workers step: the machine's cores run them
+# Threads of the gradient update (the workers wait then): our 2-core target machine's cores. A
+# fixed count, not the machine's: the update's floating-point sums depend on it (determinism).
+UPDATE_TORCH_THREADS = 2
 
 
 @dataclass(frozen=True)
@@ -116,6 +119,7 @@ def train(
             return evaluator.best_mean_reward if evaluator is not None else best
 
         callbacks: list[Any] = [
+            TorchThreadsCallback(_TORCH_THREADS, UPDATE_TORCH_THREADS),
             ScanMetricsCallback(),
             CheckpointCallback(paths, config.checkpoint_every, best_reward),
             *([evaluator] if evaluator is not None else []),
