@@ -27,14 +27,13 @@ from agents.ppo import (
     check_ppo_spec,
     load_model,
     load_policy,
-    observes_v1,
+    observed_coverage,
     split_price,
 )
 from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
 from agents.privileged import PrivilegedAgent
 from agents.protocol import Agent
 from branch_gym import V1_BRANCH_VALUE_S
-from branch_gym.env.coverage import CoverageConfig
 
 SPEC_FORMS = (
     "'none', 'periodic:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]', 'privileged' or 'ppo:PATH'"
@@ -64,7 +63,7 @@ def spec_env_kwargs(spec: str) -> dict[str, Any]:
 
     The baselines decide target angles and encode them for any action type; the continuous v0
     env represents every angle exactly, so they act there. A ``ppo:`` model acts in the env of
-    its spaces: its action type, and the v1 coverage memory and price when it observes them.
+    its spaces: its action type, and the coverage memory (v1 or v2) and price when it observes them.
 
     Raises:
         FileNotFoundError, agents.ppo.ModelFileError: a ``ppo:`` model that cannot be loaded.
@@ -73,8 +72,9 @@ def spec_env_kwargs(spec: str) -> dict[str, Any]:
         return {"action_type": "continuous"}
     model = load_model(check_ppo_spec(spec))
     kwargs: dict[str, Any] = {"action_type": action_type_of(model.action_space)}
-    if observes_v1(model.observation_space):
-        kwargs.update(coverage=CoverageConfig(), branch_value_s=V1_BRANCH_VALUE_S)
+    coverage = observed_coverage(model.observation_space)
+    if coverage is not None:
+        kwargs.update(coverage=coverage, branch_value_s=V1_BRANCH_VALUE_S)
     return kwargs
 
 

@@ -207,12 +207,28 @@ def check_ppo_spec(spec: str) -> Path:
     return path
 
 
-def observes_v1(observation_space: spaces.Space) -> bool:
-    """Whether a model's observations hold the v1 coverage memory and price (Dict or flat)."""
+def observed_coverage(observation_space: spaces.Space) -> CoverageConfig | None:
+    """The coverage memory a model observes (v1, or v2 with ``IN_FRONT``), None for v0.
+
+    A Dict space is read by the size of its ``coverage`` entry; a flat Box by its total size.
+
+    Raises:
+        ValueError: a ``coverage`` entry of neither the v1 nor the v2 size.
+    """
+    candidates = (CoverageConfig(), CoverageConfig(in_front_channel=True))
     if isinstance(observation_space, spaces.Dict):
-        return COVERAGE_KEY in observation_space.spaces
-    v1 = observation_space_of(ObservationConfig(), True, CoverageConfig(), True)
-    return observation_space.shape == v1.shape
+        if COVERAGE_KEY not in observation_space.spaces:
+            return None
+        size = observation_space.spaces[COVERAGE_KEY].shape[0]
+        for coverage in candidates:
+            if size == coverage.height_bins * coverage.n_channels:
+                return coverage
+        raise ValueError(f"a coverage memory of {size} entries is neither v1's nor v2's")
+    for coverage in candidates:
+        flat = observation_space_of(ObservationConfig(), True, coverage, True)
+        if observation_space.shape == flat.shape:
+            return coverage
+    return None
 
 
 def split_price(spec: str) -> tuple[str, float | None]:

@@ -14,7 +14,13 @@ TRIGGER_ENV_ID = "BranchScanTrigger-v0"  # hold, or advance the paper's rotation
 # episode; actions choose the target angle freely (continuous) or hold / pick one (discrete).
 ENV_ID_V1 = "BranchScan-v1"
 DISCRETE_ENV_ID_V1 = "BranchScanDiscrete-v1"
-ENV_IDS = (ENV_ID, DISCRETE_ENV_ID, FLAT_ENV_ID, TRIGGER_ENV_ID, ENV_ID_V1, DISCRETE_ENV_ID_V1)
+# v2: v1 plus the coverage memory's IN_FRONT channel (points found in front of the primary).
+ENV_ID_V2 = "BranchScan-v2"
+DISCRETE_ENV_ID_V2 = "BranchScanDiscrete-v2"
+ENV_IDS = (
+    ENV_ID, DISCRETE_ENV_ID, FLAT_ENV_ID, TRIGGER_ENV_ID, ENV_ID_V1, DISCRETE_ENV_ID_V1,
+    ENV_ID_V2, DISCRETE_ENV_ID_V2,
+)  # fmt: skip
 # Seconds of scan time a found branch is worth, drawn log-uniformly per v1 episode (our choice:
 # around v0's implicit 100 s, from rotating almost never to rotating at every chance).
 V1_BRANCH_VALUE_S = (25.0, 400.0)
@@ -29,6 +35,11 @@ def _v1_kwargs() -> dict:
     return {"coverage": CoverageConfig(), "branch_value_s": V1_BRANCH_VALUE_S}
 
 
+def _v2_kwargs() -> dict:
+    """The v1 settings with the coverage memory's ``IN_FRONT`` channel."""
+    return {**_v1_kwargs(), "coverage": CoverageConfig(in_front_channel=True)}
+
+
 def _register_envs() -> None:
     """Register the environment ids (idempotent: re-imports and reloads are fine)."""
     kwargs = {
@@ -38,6 +49,8 @@ def _register_envs() -> None:
         TRIGGER_ENV_ID: {"action_type": "trigger"},
         ENV_ID_V1: {"action_type": "continuous", **_v1_kwargs()},
         DISCRETE_ENV_ID_V1: {"action_type": "discrete_hold", **_v1_kwargs()},
+        ENV_ID_V2: {"action_type": "continuous", **_v2_kwargs()},
+        DISCRETE_ENV_ID_V2: {"action_type": "discrete_hold", **_v2_kwargs()},
     }
     for env_id, env_kwargs in kwargs.items():
         if env_id not in registry:

@@ -18,6 +18,7 @@ import logging
 from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import NamedTuple
 
 import numpy as np
 
@@ -60,6 +61,9 @@ class IterationReport:
         n_secondaries: Model secondaries after the iteration.
         mask_curves: The 2D curves of the newest mask (for observations and overlays).
         search_truncated: The 2D path search hit its cap.
+        points_in_front: (K, 3) lifted primary points (world, m) the depth gate dropped for lying
+            in front of the model: evidence of something between the camera and the primary,
+            e.g. a side branch pointing at the camera (:class:`DepthGate`).
         timings_ms: Stage name -> milliseconds (curve2d, consistency, tracking, triangulation,
             fit3d, secondaries, total).
     """
@@ -74,6 +78,7 @@ class IterationReport:
     n_secondaries: int = 0
     mask_curves: MaskCurves | None = None
     search_truncated: bool = False
+    points_in_front: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     timings_ms: dict[str, float] = field(default_factory=dict)
 
 
@@ -233,14 +238,15 @@ class Modeler:
             replace = np.zeros(0, dtype=bool)
             fit_points, fit_radii = lifted.centers, lifted.radii_m
             if projected is not None and not restart:
-                in_depth = _depth_agrees(
+                gate = _depth_agrees(
                     lifted.centers,
                     curves.primary.samples_px[liftable][lifted.index],
                     projected,
                     frame,
                     cfg,
                 )
-                fit_points, fit_radii = fit_points[in_depth], fit_radii[in_depth]
+                fit_points, fit_radii = fit_points[gate.keep], fit_radii[gate.keep]
+                report.points_in_front = lifted.centers[gate.in_front]
             report.n_lifted = len(fit_points)
             if self._primary is not None:
                 replace = projected.visible.copy()
@@ -344,27 +350,43 @@ class Modeler:
         return report
 
 
+class DepthGate(NamedTuple):
+    """What the primary's depth gate made of the lifted points (:func:`_depth_agrees`).
+
+    Attributes:
+        keep: (K,) True for the points the fit may use.
+        in_front: (K,) True for the points dropped for lying in front of a trusted model (nearer
+            the camera than ``primary_front_depth_gate_m``): something between the camera and the
+            primary, e.g. a side branch pointing at the camera.
+    """
+
+    keep: np.ndarray
+    in_front: np.ndarray
+
+
 def _depth_agrees(
     centers: np.ndarray,
     pixels: np.ndarray,
     projected: ProjectedModel,
     frame: Frame,
     config: ModelerConfig,
-) -> np.ndarray:
-    """(K,) False for lifted primary points whose depth disagrees with the model's there.
+) -> DepthGate:
+    """Which lifted primary points agree in depth with the model there (see :class:`DepthGate`).
 
     Where the model's primary agrees with the mask, a lifted point farther than
     ``primary_depth_gate_m`` in camera depth from the model point nearest to it in the image
     (within ``primary_spacing_px``) lies on something else: a side branch pointing at the camera
     covers the trunk in the mask, and its surface, lifted, dragged the primary up to 14 cm off
     (measured, seed 1017). Points in front of the model (nearer the camera) are held to the
-    tighter ``primary_front_depth_gate_m`` unless most of them are (then the model is off).
-    Points with no model point near them are kept (new parts of the view).
+    tighter ``primary_front_depth_gate_m`` unless most of them are (then the model is off, and
+    none counts as in front). Points with no model point near them are kept (new parts of the
+    view).
     """
     keep = np.ones(len(centers), dtype=bool)
+    in_front = np.zeros(len(centers), dtype=bool)
     model = projected.near_curve
     if config.primary_depth_gate_m <= 0 or not model.any() or len(centers) == 0:
-        return keep
+        return DepthGate(keep, in_front)
     model_px, model_depth = projected.pixels[model], projected.depth_m[model]
     axis = frame.T_world_camera[:3, 2]
     depth = (centers - frame.T_world_camera[:3, 3]) @ axis
@@ -373,15 +395,18 @@ def _depth_agrees(
     covered = d2[np.arange(len(centers)), nearest] <= config.primary_spacing_px
     offset = depth - model_depth[nearest]  # < 0: in front of the model
     front_gate_m = _front_gate_m(config)
-    if covered.any() and np.mean(-offset[covered] > front_gate_m) > 0.5:
+    model_off = covered.any() and np.mean(-offset[covered] > front_gate_m) > 0.5
+    if model_off:
         # Most new points lie in front of the model: the model is off (a rotation shows it from
         # a new side), not covered by a branch, which hides a part of the primary only.
         front_gate_m = config.primary_depth_gate_m
+    else:
+        in_front = covered & (-offset > front_gate_m)
     off = (offset > config.primary_depth_gate_m) | (-offset > front_gate_m)
     keep = ~(covered & off)
     anchored = np.flatnonzero(covered & keep)
     if len(anchored) == 0:
-        return keep
+        return DepthGate(keep, in_front)
     # Beyond the model (the samples are in curve order), a new point must continue the last
     # accepted one in depth: the branch is cut at the first jump onto an occluder.
     for first, step in ((int(anchored[-1]), 1), (int(anchored[0]), -1)):
@@ -394,7 +419,7 @@ def _depth_agrees(
                 keep[beyond[k:]] = False
                 break
             last = depth[i]
-    return keep
+    return DepthGate(keep, in_front)
 
 
 def _front_gate_m(config: ModelerConfig) -> float:

@@ -37,3 +37,20 @@ def test_heights_outside_the_band_are_dropped_and_rows_map_to_heights() -> None:
     np.testing.assert_allclose(heights, [0.5, 0.56])
     with pytest.raises(ValueError, match="band_low_m"):
         CoverageMemory(CONFIG, 0.8, 0.3)
+
+
+def test_points_in_front_of_the_primary_accumulate_in_their_height_bins() -> None:
+    """v2's IN_FRONT channel: counts of every step add up; v1's layout stays 3 + A channels."""
+    config = CoverageConfig(
+        height_bins=5, sector_angles_deg=(-22.5, 0.0, 22.5), in_front_channel=True
+    )
+    assert config.n_channels == CONFIG.n_channels + 1
+    memory = CoverageMemory(config, 0.3, 0.8)
+    memory.update(0.30, 0.42, 0.0, np.zeros(0), np.zeros(0), None, np.array([0.36, 0.37, 0.95]))
+    memory.update(0.40, 0.52, 22.5, np.zeros(0), np.zeros(0), None, np.array([0.38]))
+    memory.update(0.50, 0.62, 22.5, np.zeros(0), np.zeros(0), None)
+    in_front = memory.as_array()[:, -1]
+    np.testing.assert_allclose(in_front, [0.3, 0, 0, 0, 0])  # 0.95 m lies above the band
+    v1 = CoverageMemory(CONFIG, 0.3, 0.8)
+    v1.update(0.30, 0.42, 0.0, np.zeros(0), np.zeros(0), None, np.array([0.36]))
+    assert v1.as_array().shape == (5, CONFIG.n_channels)

@@ -1,4 +1,5 @@
-"""The v1 environment: coverage memory and price of scan time in the observation, hold action."""
+"""The v1 and v2 environments: coverage memory (v2: with IN_FRONT) and price of scan time in the
+observation, hold action."""
 
 from __future__ import annotations
 
@@ -73,13 +74,16 @@ def test_the_hold_action_keeps_a_rotation() -> None:
 
 
 @pytest.mark.slow
-def test_a_short_v1_training_run_writes_a_model_that_plays_at_a_given_price(tmp_path: Path) -> None:
+@pytest.mark.parametrize("env_id", [branch_gym.DISCRETE_ENV_ID_V1, branch_gym.DISCRETE_ENV_ID_V2])
+def test_a_short_training_run_writes_a_model_that_plays_at_a_given_price(
+    tmp_path: Path, env_id: str
+) -> None:
     spec = importlib.util.spec_from_file_location("train_cli", ROOT / "train.py")
     cli = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(cli)
     out = tmp_path / "run"
     argv = [
-        "--env", branch_gym.DISCRETE_ENV_ID_V1, "--timesteps", "64", "--out", str(out),
+        "--env", env_id, "--timesteps", "64", "--out", str(out),
         "--tracker", "oracle", "--end-height", "0.33", "--n-envs", "1", "--seed", "3",
         "--n-steps", "32", "--batch-size", "32", "--n-epochs", "1",
         "--checkpoint-every", "64", "--eval-every", "64", "--eval-trees", "1",
@@ -130,3 +134,70 @@ def test_the_shipped_priced_policy_rotates_more_readily_when_branches_are_dear()
     assert dear > cheap + 0.01, (cheap, dear)
     plain = [rotate_probability("ppo_dagger.zip", p) for p in (0.0, 1.0)]
     assert abs(plain[1] - plain[0]) < dear - cheap
+
+
+def _v2_scan(side_branches: str, base_height_m: float, end_height_m: float) -> list[dict]:
+    """Observations of a hold-only v2 scan of seed 0's primary with a straight 8 cm branch at
+    ``base_height_m`` pointing at the camera ("toward") or none ("none")."""
+    from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
+
+    env = gymnasium.make(
+        branch_gym.DISCRETE_ENV_ID_V2, tracker="oracle", render_tracking_frames=False,
+        end_height_m=end_height_m,
+    )  # fmt: skip
+    try:
+        env.reset(seed=0)
+        primary = env.unwrapped.session.tree.primary
+        k = int(np.argmin(np.abs(primary.points[:, 2] - base_height_m)))
+        steps = np.linspace(0.0, 0.08, 41)[:, None]
+        toward = BranchGT(
+            primary.points[k] + steps * np.array([0.0, -1.0, 0.05]) / np.hypot(1.0, 0.05),
+            np.full(41, 0.8 * float(primary.radii[k])),
+        )
+        branches = [toward] if side_branches == "toward" else []
+        tree = TreeGT(primary, branches, [], 0)
+        observation, _ = env.reset(seed=0, options={"tree": tree, "branch_value_s": 100.0})
+        observations, done = [observation], False
+        while not done:
+            observation, _, terminated, truncated, _ = env.step(0)
+            observations.append(observation)
+            done = terminated or truncated
+    finally:
+        env.close()
+    return observations
+
+
+def _in_front_counts(side_branches: str) -> np.ndarray:
+    """IN_FRONT counts per height bin at the end of a short scan past a branch at 0.34 m."""
+    coverage = _v2_scan(side_branches, 0.34, 0.42)[-1][COVERAGE_KEY].reshape(16, 9)
+    return coverage[:, -1] * 10.0
+
+
+def test_v2_marks_the_height_of_a_branch_pointing_at_the_camera() -> None:
+    """The tracked primary samples on the near branch triangulate in front of the model."""
+    toward = _in_front_counts("toward")
+    assert toward.sum() >= 2 and np.count_nonzero(toward) == 1  # one height bin: the branch's
+    assert _in_front_counts("none").sum() == 0
+
+
+@pytest.mark.slow
+def test_the_shipped_v2_student_wants_to_rotate_when_a_branch_points_at_the_camera() -> None:
+    """The v2 student's probability of leaving "hold" along a scan past a branch pointing at
+    the lens (at 0.40 m) and along the same primary alone."""
+    import torch
+
+    from agents.ppo import load_model
+
+    model = load_model(ROOT / "models" / "ppo_dagger_v2.zip")
+
+    def rotate_probabilities(side_branches: str) -> np.ndarray:
+        observations = _v2_scan(side_branches, 0.40, 0.50)[:-1]  # those the student acts on
+        batch = {key: np.stack([o[key] for o in observations]) for key in observations[0]}
+        tensor, _ = model.policy.obs_to_tensor(batch)
+        with torch.no_grad():
+            probs = model.policy.get_distribution(tensor).distribution.probs.numpy()
+        return 1.0 - probs[:, 0]
+
+    toward, alone = rotate_probabilities("toward"), rotate_probabilities("none")
+    assert toward.max() > 0.5, toward  # measured: 0.95 once the branch is in view
+    assert alone.max() < 0.2, alone  # measured: <= 0.03 along the whole scan

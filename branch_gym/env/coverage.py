@@ -16,6 +16,11 @@ channel                        meaning (per height bin)
 ``A + 2`` (``DISAGREEMENT``)   modeling iterations in the bin whose mask disagreed with the model
                                (inconsistent / restart: often a branch crossing the primary or
                                pointing at the lens) / ``count_scale``
+``A + 3`` (``IN_FRONT``, v2)   tracked primary points that triangulated in front of the model
+                               (``IterationReport.points_in_front``: something between the
+                               camera and the primary, e.g. a branch pointing at the lens),
+                               all iterations so far / ``count_scale``; only with
+                               ``CoverageConfig.in_front_channel``
 =============================  ==============================================================
 
 Heights come from image rows through the camera's vertical field of view at the follow distance
@@ -41,11 +46,13 @@ class CoverageConfig:
         sector_angles_deg: Centres of the rotation sectors (the discrete env's angles: the
             paper's +-22.5 and +-45 deg and 0); an angle counts for the nearest centre.
         count_scale: Counts are divided by this and clipped to 1 (the observation's count scale).
+        in_front_channel: Add the ``IN_FRONT`` channel (the v2 observation).
     """
 
     height_bins: int = 16
     sector_angles_deg: tuple[float, ...] = (-45.0, -22.5, 0.0, 22.5, 45.0)
     count_scale: float = 10.0
+    in_front_channel: bool = False
 
     def __post_init__(self) -> None:
         require_int(self, "height_bins", minimum=1)
@@ -55,7 +62,7 @@ class CoverageConfig:
 
     @property
     def n_channels(self) -> int:
-        return len(self.sector_angles_deg) + 3
+        return len(self.sector_angles_deg) + 3 + int(self.in_front_channel)
 
 
 class CoverageMemory:
@@ -84,6 +91,7 @@ class CoverageMemory:
         self.unconfirmed = np.zeros(self.config.height_bins)
         self.found = np.zeros(self.config.height_bins)
         self.disagreement = np.zeros(self.config.height_bins)
+        self.in_front = np.zeros(self.config.height_bins)
 
     def bins_of(self, heights_m: np.ndarray) -> np.ndarray:
         """Bin index of each height; -1 outside the band."""
@@ -101,8 +109,9 @@ class CoverageMemory:
         unconfirmed_heights_m: np.ndarray,
         found_heights_m: np.ndarray,
         disagreed_at_m: float | None,
+        in_front_heights_m: np.ndarray | None = None,
     ) -> None:
-        """Record one modeling iteration.
+        """Record one modeling iteration (or the iterations of one env step).
 
         Args:
             view_low_m, view_high_m: Heights at the bottom and top of the image at z_target.
@@ -110,6 +119,8 @@ class CoverageMemory:
             unconfirmed_heights_m: Base heights of the 2D candidates no 3D secondary explains.
             found_heights_m: Base heights of all model secondaries (replaces the earlier ones).
             disagreed_at_m: The camera height if the iteration's mask disagreed with the model.
+            in_front_heights_m: Heights of new points found in front of the model (added to the
+                ``IN_FRONT`` counts).
         """
         centres = (self.edges_m[:-1] + self.edges_m[1:]) / 2.0
         in_view = (centres >= view_low_m) & (centres <= view_high_m)
@@ -117,9 +128,11 @@ class CoverageMemory:
         self.seen_from[in_view, sector] = True
         self.unconfirmed[in_view] = 0.0  # the latest view of these bins is what counts
         self.found[:] = 0.0
+        in_front = np.zeros(0) if in_front_heights_m is None else in_front_heights_m
         for counts, heights in (
             (self.unconfirmed, unconfirmed_heights_m),
             (self.found, found_heights_m),
+            (self.in_front, in_front),
         ):
             index = self.bins_of(np.asarray(heights, float))
             np.add.at(counts, index[index >= 0], 1.0)
@@ -131,7 +144,10 @@ class CoverageMemory:
     def as_array(self) -> np.ndarray:
         """(height_bins, n_channels) float32 in [0, 1]."""
         scale = self.config.count_scale
-        counts = np.column_stack([self.unconfirmed, self.found, self.disagreement]) / scale
+        columns = [self.unconfirmed, self.found, self.disagreement]
+        if self.config.in_front_channel:
+            columns.append(self.in_front)
+        counts = np.column_stack(columns) / scale
         return np.concatenate(
             [self.seen_from.astype(np.float32), np.clip(counts, 0.0, 1.0).astype(np.float32)],
             axis=1,

@@ -124,6 +124,12 @@ class BranchScanEnv(gym.Env):
                                                25 s, 1 at 400 s of scan time per found branch
     ============  ===========================  ==================================================
 
+    v2 observations (``BranchScan-v2``, ``BranchScanDiscrete-v2``;
+    ``coverage=CoverageConfig(in_front_channel=True)``) hold a (144,) ``coverage``: 16 height bins
+    x 9 channels, the v1 channels and ``IN_FRONT`` last, the tracked primary points per bin that
+    triangulated in front of the model (``IterationReport.points_in_front``: a branch pointing at
+    the lens covers the trunk in the mask and leaves no other trace), / 10, clipped to 1.
+
     ## Rewards (ground truth, simulation only; :class:`branch_gym.env.reward.RewardConfig`)
 
     =================  ==========  ==============================================================
@@ -184,7 +190,7 @@ class BranchScanEnv(gym.Env):
     ``scan``                 a full :class:`branch_gym.scan.ScanConfig` (the shortcuts above
                              modify it)
     ``action_type``          "continuous", "discrete", "discrete_hold" or "trigger" (set by id)
-    ``coverage``             a ``CoverageConfig``: the v1 coverage memory (None in v0)
+    ``coverage``             a ``CoverageConfig``: the v1 / v2 coverage memory (None in v0)
     ``branch_value_s``       (low, high) s: the per-episode price of scan time (None in v0);
                              ``reset(options={"branch_value_s": v})`` fixes it
     ``theta_max_deg``        continuous action bound and angle normaliser (45)
@@ -212,6 +218,7 @@ class BranchScanEnv(gym.Env):
     - v1: adds the ``coverage`` memory and the ``price`` of scan time to the observation, draws
       the price per episode (the reward's time term follows it), and the discrete id gains a
       hold action (``discrete_hold``). v0 ids are unchanged.
+    - v2: the coverage memory gains the ``IN_FRONT`` channel (144 entries). v1 ids are unchanged.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": RENDER_FPS}  # noqa: RUF012
@@ -280,7 +287,7 @@ class BranchScanEnv(gym.Env):
             self._actions.reset()
             self._last_report, self._previous_action, self._over = None, 0.0, False
         metrics = self._score(env_ms)
-        obs = self._observe(env_ms, remember=False)
+        obs = self._observe(env_ms, [])
         terms = dict.fromkeys(REWARD_TERMS, 0.0)
         return obs, self._info(metrics, terms, [], False, env_ms)
 
@@ -305,7 +312,7 @@ class BranchScanEnv(gym.Env):
             metrics = self._score(env_ms)
             failed = terminated and session.failure is not None
             reward, terms = self._reward.step(metrics, session.scan_time_s, failed)
-            obs = self._observe(env_ms, remember=bool(result.reports))
+            obs = self._observe(env_ms, result.reports)
         info = self._info(metrics, terms, result.reports, result.rotated, env_ms)
         if session.done:
             self._over = True
@@ -348,8 +355,8 @@ class BranchScanEnv(gym.Env):
         with stage_timer(env_ms, "metrics_ms"):
             return self._scores.score(session.model, session.tree, session.camera_height_m)
 
-    def _observe(self, env_ms: dict[str, float], remember: bool) -> Any:
-        """The observation; with ``remember`` the step's iteration enters the coverage memory."""
+    def _observe(self, env_ms: dict[str, float], reports: list[IterationReport]) -> Any:
+        """The observation; the step's iterations (``reports``) enter the coverage memory."""
         with stage_timer(env_ms, "observation_ms"):
             state = pipeline_state(
                 self._session, self._last_report, self._actions.normalised, self._previous_action
@@ -357,8 +364,8 @@ class BranchScanEnv(gym.Env):
             self._drawing = draw_state(state, self.config.observation)
             extras: dict[str, np.ndarray] = {}
             if self._coverage is not None:
-                if remember:
-                    self._remember(state)
+                if reports:
+                    self._remember(state, reports)
                 extras[COVERAGE_KEY] = self._coverage.as_array().ravel()
             if self._priced:
                 extras[PRICE_KEY] = np.array([self._price], np.float32)
@@ -366,8 +373,9 @@ class BranchScanEnv(gym.Env):
                 state, self._drawing, self.config.observation, self.config.flatten, extras
             )
 
-    def _remember(self, state: PipelineState) -> None:
-        """Put the latest iteration's view, candidates and model into the coverage memory."""
+    def _remember(self, state: PipelineState, reports: list[IterationReport]) -> None:
+        """Put the latest iteration's view, candidates and model, and the points every
+        iteration of the step found in front of the model, into the coverage memory."""
         session, K = self._session, state.intrinsics
         z_target = session.controller.config.z_target_m
         camera_z = session.camera_height_m
@@ -377,6 +385,7 @@ class BranchScanEnv(gym.Env):
         found = np.array([b.points[0, 2] for b in state.model.secondaries if len(b.points)])
         half_m = session.vertical_fov_m / 2.0
         disagreed = state.outcome is not None and state.outcome is not Outcome.CONSISTENT
+        in_front = np.concatenate([report.points_in_front[:, 2] for report in reports])
         self._coverage.update(
             camera_z - half_m,
             camera_z + half_m,
@@ -384,6 +393,7 @@ class BranchScanEnv(gym.Env):
             heights,
             found,
             camera_z if disagreed else None,
+            in_front,
         )
 
     def _branch_value_s(self, fixed_s: float | None) -> float | None:

@@ -4,10 +4,12 @@
 ``config.py``        ``TrainConfig`` (env, seeds, schedule) and ``PPOConfig``, frozen, validated
 ``seeds.py``         disjoint tree seed ranges: training, held-out evaluation, ``eval.py`` trees
 ``envs.py``          training ``VecEnv`` (Subproc / Dummy, Monitor, VecNormalize), evaluation env
-``callbacks.py``     per-episode scan metrics to TensorBoard, tqdm progress bar
+``callbacks.py``     per-episode scan metrics to TensorBoard, torch threads by phase, tqdm bar
 ``checkpoints.py``   atomic checkpoints (model, VecNormalize, ``checkpoint.json``) for resuming
 ``evaluation.py``    held-out evaluation during training, best model
 ``selection.py``     checkpoint selection with LK tracking on validation trees (a CLI)
+``imitation.py``     DAgger students of the privileged policy (a CLI)
+``calibration.py``   a discrete student's decision threshold: the "hold" logit shifted (a CLI)
 ``action_mix.py``    a fixed action mix for benchmarks (``bench/bench_train.py``)
 ``curve.py``         the training curve figure
 ``paths.py``         the files of a run folder

@@ -119,7 +119,11 @@ class SecondaryBranches:
         return created
 
     def update_trust(self, frame: Frame) -> None:
-        """+1 for each visible branch whose projection lands on the mask, -1 otherwise; prune."""
+        """+1 for each visible branch whose projection lands on the mask, -1 otherwise; prune.
+
+        A branch is visible when at least ``secondary_trust_in_view`` of its observed points (and
+        two) project into the image.
+        """
         cfg = self.config
         kept = []
         for branch in self._branches:
@@ -127,7 +131,7 @@ class SecondaryBranches:
                 continue
             observed = branch.model.points[branch.n_extension :]  # not the bridged junction
             on_mask, visible = _mask_fraction(observed, frame, cfg.image_margin_px)
-            if visible >= 2:
+            if visible >= max(2, cfg.secondary_trust_in_view * len(observed)):
                 branch.trust += 1 if on_mask >= 0.5 else -1
                 branch.model.trust = branch.trust
             if branch.trust >= cfg.secondary_trust_min:
