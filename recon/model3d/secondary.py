@@ -250,10 +250,15 @@ class SecondaryBranches:
                     break
 
     def _refit(self, branch: _Secondary) -> None:
-        """Fit a curve through all observations, ordered outward from the junction side."""
+        """Fit a curve through all observations, ordered outward from the junction side (the
+        junction itself with ``secondary_order_from_junction``, else the first detection's
+        first point)."""
         cfg = self.config
         pts, radii = branch.observations, branch.radii
-        order = np.argsort(np.linalg.norm(pts - branch.base_hint, axis=1))
+        anchor = branch.base_hint
+        if cfg.secondary_order_from_junction and branch.junction is not None:
+            anchor = branch.junction
+        order = np.argsort(np.linalg.norm(pts - anchor, axis=1))
         pts, radii = pts[order], radii[order]
         curve: CubicBezier | None = None
         keep = np.ones(len(pts), dtype=bool)

@@ -1,6 +1,10 @@
-"""Trust of model secondaries with ``secondary_trust_in_view``: a frame changes it only where
-enough of the branch is in view (a well reconstructed branch swept past the image border during a
-rotation was deleted, seed 24); 0, the default, counts any frame that shows two points."""
+"""Upkeep of model secondaries across views (issue 17: rotations cost found branches).
+
+Trust with ``secondary_trust_in_view``: a frame changes it only where enough of the branch is in
+view (a well reconstructed branch swept past the image border during a rotation was deleted, seed
+24); 0, the default, counts any frame that shows two points. The refit with
+``secondary_order_from_junction``: observations ordered from the junction (a branch extended
+toward the trunk by a later view folded, seed 16)."""
 
 from __future__ import annotations
 
@@ -64,3 +68,30 @@ def test_the_in_view_share_must_be_a_fraction() -> None:
         ModelerConfig(secondary_trust_in_view=1.5)
     with pytest.raises(ValueError, match="secondary_trust_in_view"):
         ModelerConfig(secondary_trust_in_view=-0.1)
+
+
+def _refit_after_inward_extension(config: ModelerConfig) -> float:
+    """Median distance (m) of the model to the branch after a detection of its outer part (from
+    5 cm out) was extended toward the trunk by later, denser ones (views from another side)."""
+    junction = np.array([0.0, 0.0, 0.45])
+    along = np.linspace(0.0, 0.08, 161)[:, None]
+    truth = junction + along * np.array([0.6, -0.8, 0.0]) + along**2 * np.array([0.0, 0.0, 2.0])
+    rng = np.random.default_rng(0)
+    outer = truth[100::3] + rng.normal(0.0, 0.001, truth[100::3].shape)
+    inner = np.concatenate([truth[5:100:2]] * 3)
+    inner += rng.normal(0.0, 0.001, inner.shape)
+    branches = SecondaryBranches(config, np.random.default_rng(0))
+    primary = BranchModel(PRIMARY.points[::10], PRIMARY.radii[::10])
+    assert branches.add_detections([SecondaryDetection(outer, np.full(len(outer), 0.004))], primary)
+    (branch,) = branches._branches
+    branch.junction = junction  # where its ray back met the primary
+    branches._merge_observations(branch, inner, np.full(len(inner), 0.004))
+    model = branch.model.points[branch.n_extension :]
+    return float(np.median(np.min(np.linalg.norm(model[:, None] - truth[None], axis=2), axis=1)))
+
+
+def test_observations_ordered_from_the_junction_keep_an_extended_branch_on_itself() -> None:
+    """Ordered from the first detection's first point (mid-branch by now), inner and outer
+    observations interleave and the cubic folds; from the junction, the fit follows the branch."""
+    assert _refit_after_inward_extension(ModelerConfig(secondary_order_from_junction=False)) > 0.01
+    assert _refit_after_inward_extension(ModelerConfig(secondary_order_from_junction=True)) < 0.002
