@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import torch
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import TensorBoardOutputFormat
 
@@ -108,26 +109,18 @@ class TorchThreadsCallback(BaseCallback):
         self._initial: int | None = None
 
     def _on_training_start(self) -> None:
-        import torch
-
         self._initial = torch.get_num_threads()
 
     def _on_rollout_start(self) -> None:
-        import torch
-
         torch.set_num_threads(self.rollout_threads)
 
     def _on_rollout_end(self) -> None:
-        import torch
-
         torch.set_num_threads(self.update_threads)
 
     def _on_step(self) -> bool:
         return True
 
     def _on_training_end(self) -> None:
-        import torch
-
         if self._initial is not None:
             torch.set_num_threads(self._initial)
 
