@@ -18,6 +18,7 @@ from branch_gym.training.imitation import (
     imitate,
     label_weights,
     new_student,
+    rotation_auc,
 )
 
 FAST = TrainConfig(
@@ -66,6 +67,16 @@ def test_the_fit_learns_a_rule_the_labels_follow():
     probe = {key: value[:50] for key, value in observations.items()}
     actions, _ = model.predict(probe, deterministic=True)
     assert np.mean(actions == labels[:50]) >= 0.9
+    # It ranks the rotations of labels it was not fitted on (AUC near 1), and a label set that
+    # contradicts its rule ranks at the bottom (AUC near 0).
+    new_angle = rng.uniform(-1, 1, n).astype(np.float32)
+    new_observations = {key: value.copy() for key, value in observations.items()}
+    new_observations["vector"][:, VectorField.ANGLE] = new_angle
+    held_out = RoundData(new_observations, np.where(new_angle > 0.2, 2, 0).astype(np.int64))
+    assert rotation_auc(model, held_out) >= 0.95
+    inverted = RoundData(new_observations, np.where(new_angle > 0.2, 0, 2).astype(np.int64))
+    assert rotation_auc(model, inverted) <= 0.05
+    assert np.isnan(rotation_auc(model, RoundData(new_observations, np.zeros(n, np.int64))))
 
 
 @pytest.mark.slow
@@ -87,6 +98,10 @@ def test_a_dagger_run_resumes_and_writes_a_loadable_policy(tmp_path):
     final = imitate(more, tmp_path, resume=True)
     rows = [json.loads(line) for line in (tmp_path / ROUNDS_LOG).read_text().splitlines()]
     assert [row["played_by"] for row in rows] == ["expert", "student"]
+    assert np.isnan(rows[0]["student_rotation_auc"])  # the expert played round 0
+    assert 0.0 <= rows[1]["student_rotation_auc"] <= 1.0 or np.isnan(
+        rows[1]["student_rotation_auc"]
+    )
     env = gym.make("BranchScanDiscrete-v1", tracker="oracle", render_tracking_frames=False)
     agent = make_agent(f"ppo:{final}@100", env)
     observation, _ = env.reset(seed=3)

@@ -77,6 +77,9 @@ RESUMABLE_CHANGES = (
     "from_scratch", "rotation_weight", "reference_value_s",
 )  # fmt: skip
 _WORKER_THREADS = 1
+# A fitted student whose rotation AUC on its own labels is below this has not learned them.
+COLLAPSED_AUC = 0.6
+_AUC_BATCH = 1024  # observations per forward pass of rotation_auc (memory, not results)
 
 
 @dataclass(frozen=True)
@@ -93,7 +96,11 @@ class ImitationConfig:
         epochs: Most passes over all labels after each round (our choice: 10; early stopping
             on the held-out labels keeps the best epoch).
         batch_size: Minibatch size of the fit (our choice: 256).
-        learning_rate: Adam step size of the fit (our choice: 1e-3, BC's usual).
+        learning_rate: Adam step size of the fit (our choice: 3e-4, SB3's PPO default; at BC's
+            usual 1e-3 some fits of the v2 students collapsed: the image CNN's features grew
+            until the policy MLP's tanh units saturated and the student output the same action
+            probabilities for every observation, ranking the expert's rotations no better than
+            chance even on the labels it was fitted on; see :func:`rotation_auc`).
         weight_decay: AdamW's decoupled weight decay (our choice: 1e-4, a light regulariser:
             without it our students fitted 99 % of the labels and agreed with the expert on
             89 % of a new round's).
@@ -117,7 +124,7 @@ class ImitationConfig:
     episodes: int = 96
     epochs: int = 10
     batch_size: int = 256
-    learning_rate: float = 1e-3
+    learning_rate: float = 3e-4
     weight_decay: float = 1e-4
     validation_fraction: float = 0.1
     from_scratch: bool = True
@@ -436,6 +443,43 @@ def fit_student(
     }
 
 
+def rotation_auc(model: Any, data: RoundData) -> float:
+    """How well a student ranks the expert's rotations: the area under the ROC curve.
+
+    The score of a state is the student's probability of rotating (1 - P(hold)); 0.5 is a
+    student that cannot tell the expert's rotations from its holds, e.g. one whose fit
+    collapsed to the same output for every observation (a DAgger run whose students' AUC stays
+    at 0.5 has stopped learning). Computed on the labels of the round the student played, which
+    it was not fitted on, it is a held-out score.
+
+    Args:
+        model: The student (SB3 PPO on a discrete env).
+        data: Labelled observations.
+
+    Returns:
+        The AUC in [0, 1]; NaN when the labels hold only one class.
+    """
+    import torch
+    from scipy.stats import mannwhitneyu
+
+    rotates = data.expert_actions != 0
+    if rotates.all() or not rotates.any():
+        return math.nan
+    policy = model.policy
+    p_rotate = []
+    with torch.no_grad():
+        for start in range(0, len(rotates), _AUC_BATCH):
+            batch = slice(start, start + _AUC_BATCH)
+            observation, _ = policy.obs_to_tensor(
+                {key: value[batch] for key, value in data.observations.items()}
+            )
+            probs = policy.get_distribution(observation).distribution.probs
+            p_rotate.append(1.0 - probs[:, 0].numpy())
+    scores = np.concatenate(p_rotate)
+    u_statistic = mannwhitneyu(scores[rotates], scores[~rotates]).statistic
+    return float(u_statistic / (rotates.sum() * (~rotates).sum()))
+
+
 # -- the run -----------------------------------------------------------------------------------
 
 
@@ -507,13 +551,26 @@ def imitate(
                 round_data = RoundData.concatenate(results)
                 round_data.save(out / f"round_{round_index}.npz")
                 rounds.append(round_data)
+                # The student that played this round, on labels it was not fitted on.
+                held_out_auc = math.nan if student_path is None else rotation_auc(model, round_data)
                 rng = np.random.default_rng([config.train.seed, round_index])
                 if config.from_scratch:
                     model = new_student(config, spaces_env)
-                fit = fit_student(model, RoundData.concatenate(rounds), config, rng, bounds)
+                all_labels = RoundData.concatenate(rounds)
+                fit = fit_student(model, all_labels, config, rng, bounds)
+                fit["train_rotation_auc"] = rotation_auc(model, all_labels)
+                if fit["train_rotation_auc"] < COLLAPSED_AUC:
+                    logger.warning(
+                        "round %d: the student ranks the expert's rotations on its own labels at "
+                        "an AUC of %.2f: its fit collapsed or has not converged (lower the "
+                        "learning rate or raise the epochs)",
+                        round_index,
+                        fit["train_rotation_auc"],
+                    )
                 model.save(out / f"model_round_{round_index}.zip")
                 labels = len(round_data.expert_actions)
                 settings = {name: getattr(config, name) for name in RESUMABLE_CHANGES[1:]}
+                fit = {"student_rotation_auc": held_out_auc, **fit}
                 _log_round(out, round_index, student_path is None, summaries, fit, labels, settings)
     finally:
         spaces_env.close()
@@ -574,6 +631,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--rounds", type=int, default=ImitationConfig.rounds)
     parser.add_argument("--episodes", type=int, default=ImitationConfig.episodes)
     parser.add_argument("--epochs", type=int, default=ImitationConfig.epochs)
+    parser.add_argument("--learning-rate", type=float, default=ImitationConfig.learning_rate)
     parser.add_argument("--weight-decay", type=float, default=ImitationConfig.weight_decay)
     parser.add_argument(
         "--validation-fraction",
@@ -615,6 +673,7 @@ def main(argv: list[str] | None = None) -> int:
             rounds=args.rounds,
             episodes=args.episodes,
             epochs=args.epochs,
+            learning_rate=args.learning_rate,
             weight_decay=args.weight_decay,
             validation_fraction=args.validation_fraction,
             from_scratch=not args.continue_weights,
