@@ -22,6 +22,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import logging
+import sys
 from pathlib import Path
 
 import cv2
@@ -35,6 +36,7 @@ from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.episodes import run_episode
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.report import format_comparison
+from branch_gym.evaluation.runner import ConfigMismatchError
 from branch_gym.sim.world import World
 
 # The trained policies shipped with the repository (README, "Learned rotation policies"); the
@@ -97,13 +99,16 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.WARNING)
     config = EvalConfig(policies=DEMO_POLICIES, trees=args.trees, workers=args.workers)
     print(f"Scanning {args.trees} trees x {len(DEMO_POLICIES)} policies {DEMO_POLICIES} ...")
-    with tqdm(total=len(config.keys), unit="scan") as bar:
-        outcome = run_evaluation(
-            config,
-            args.out,
-            on_start=lambda total, done: bar.update(done),
-            on_done=lambda key: bar.update(1),
-        )
+    try:
+        with tqdm(total=len(config.keys), unit="scan") as bar:
+            outcome = run_evaluation(
+                config,
+                args.out,
+                on_start=lambda total, done: bar.update(done),
+                on_done=lambda key: bar.update(1),
+            )
+    except ConfigMismatchError as exc:  # trials of an older pipeline or model in --out
+        sys.exit(f"error: {exc}")
     print(format_comparison(outcome.summary))
     snapshot = _snapshot(args.out, config.seed)
     print(f"Recording {SHIPPED_POLICY} scanning tree {config.seed} ...")
