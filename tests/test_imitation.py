@@ -99,6 +99,7 @@ def test_a_dagger_run_resumes_and_writes_a_loadable_policy(tmp_path):
     rows = [json.loads(line) for line in (tmp_path / ROUNDS_LOG).read_text().splitlines()]
     assert [row["played_by"] for row in rows] == ["expert", "student"]
     assert np.isnan(rows[0]["student_rotation_auc"])  # the expert played round 0
+    assert all("train_rotation_auc" in row for row in rows)  # the fit's own ranking, logged
     assert 0.0 <= rows[1]["student_rotation_auc"] <= 1.0 or np.isnan(
         rows[1]["student_rotation_auc"]
     )
