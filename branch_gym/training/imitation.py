@@ -54,6 +54,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
+from scipy.stats import mannwhitneyu
 from tqdm import tqdm
 
 import branch_gym  # noqa: F401  (registers the env ids in worker processes)
@@ -428,11 +429,8 @@ def fit_student(
     def accuracy(index: np.ndarray) -> float:
         if len(index) == 0:
             return math.nan
-        predicted = []
-        with torch.no_grad():
-            for _, observation in batches(index):
-                predicted.append(policy.get_distribution(observation).mode().numpy())
-        return float(np.mean(np.concatenate(predicted) == data.expert_actions[index]))
+        predicted = action_probabilities(model, data, index, config.batch_size).argmax(axis=1)
+        return float(np.mean(predicted == data.expert_actions[index]))
 
     return {
         "epochs_kept": best_epoch,
@@ -441,6 +439,31 @@ def fit_student(
         "train_accuracy": accuracy(train),
         "held_out_accuracy": accuracy(held_out),
     }
+
+
+def action_probabilities(
+    model: Any, data: RoundData, index: np.ndarray, batch_size: int
+) -> np.ndarray:
+    """(len(index), n_actions) action probabilities of a student for some labelled observations.
+
+    Args:
+        model: The student (SB3 PPO on a discrete env).
+        data: Labelled observations.
+        index: Which of them, in this order.
+        batch_size: Observations per forward pass (memory, not results).
+    """
+    import torch
+
+    policy = model.policy
+    probabilities = [np.zeros((0, model.action_space.n))]
+    with torch.no_grad():
+        for start in range(0, len(index), batch_size):
+            part = index[start : start + batch_size]
+            observation, _ = policy.obs_to_tensor(
+                {key: value[part] for key, value in data.observations.items()}
+            )
+            probabilities.append(policy.get_distribution(observation).distribution.probs.numpy())
+    return np.concatenate(probabilities)
 
 
 def rotation_auc(model: Any, data: RoundData) -> float:
@@ -459,23 +482,11 @@ def rotation_auc(model: Any, data: RoundData) -> float:
     Returns:
         The AUC in [0, 1]; NaN when the labels hold only one class.
     """
-    import torch
-    from scipy.stats import mannwhitneyu
-
     rotates = data.expert_actions != 0
     if rotates.all() or not rotates.any():
         return math.nan
-    policy = model.policy
-    p_rotate = []
-    with torch.no_grad():
-        for start in range(0, len(rotates), _AUC_BATCH):
-            batch = slice(start, start + _AUC_BATCH)
-            observation, _ = policy.obs_to_tensor(
-                {key: value[batch] for key, value in data.observations.items()}
-            )
-            probs = policy.get_distribution(observation).distribution.probs
-            p_rotate.append(1.0 - probs[:, 0].numpy())
-    scores = np.concatenate(p_rotate)
+    index = np.arange(len(rotates))
+    scores = 1.0 - action_probabilities(model, data, index, _AUC_BATCH)[:, 0]
     u_statistic = mannwhitneyu(scores[rotates], scores[~rotates]).statistic
     return float(u_statistic / (rotates.sum() * (~rotates).sum()))
 
@@ -558,6 +569,7 @@ def imitate(
                     model = new_student(config, spaces_env)
                 all_labels = RoundData.concatenate(rounds)
                 fit = fit_student(model, all_labels, config, rng, bounds)
+                fit["student_rotation_auc"] = held_out_auc
                 fit["train_rotation_auc"] = rotation_auc(model, all_labels)
                 if fit["train_rotation_auc"] < COLLAPSED_AUC:
                     logger.warning(
@@ -570,7 +582,6 @@ def imitate(
                 model.save(out / f"model_round_{round_index}.zip")
                 labels = len(round_data.expert_actions)
                 settings = {name: getattr(config, name) for name in RESUMABLE_CHANGES[1:]}
-                fit = {"student_rotation_auc": held_out_auc, **fit}
                 _log_round(out, round_index, student_path is None, summaries, fit, labels, settings)
     finally:
         spaces_env.close()
