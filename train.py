@@ -6,7 +6,8 @@ Usage::
         [--resume] [--tracker lk|oracle] [--segmenter gt|noisy:mild|...] [--tree paper] \\
         [--end-height 0.75] [--speed 0.025] [--checkpoint-every 10000] [--eval-every 10000] \\
         [--eval-trees 10] [--normalize] [--n-steps 256] [--batch-size 64] [--n-epochs 10] \\
-        [--learning-rate 3e-4] [--log-std-init 0] [--recurrent] [--init-model MODEL.zip]
+        [--learning-rate 3e-4] [--log-std-init 0] [--recurrent] [--init-model MODEL.zip] \\
+        [--init-logit-scale 3] [--value-warmup 16384] [--worker-rollouts]
 
 OUT then holds config.json, TensorBoard logs (tensorboard --logdir OUT/tb), checkpoints/,
 best_model.zip, evaluations.jsonl and final_model.zip. Evaluate a model with
@@ -59,9 +60,26 @@ def build_parser() -> argparse.ArgumentParser:
         "--recurrent", action="store_true", help="sb3-contrib RecurrentPPO with an LSTM policy"
     )
     parser.add_argument(
+        "--worker-rollouts",
+        action="store_true",
+        help="each env process plays whole rollouts under a policy copy (no lockstep; faster)",
+    )
+    parser.add_argument(
         "--init-model",
         type=Path,
         help="start a new run from this model's weights (e.g. a DAgger student)",
+    )
+    parser.add_argument(
+        "--init-logit-scale",
+        type=float,
+        metavar="K",
+        help="multiply the init model's action logits by K (sampling temperature 1/K)",
+    )
+    parser.add_argument(
+        "--value-warmup",
+        type=int,
+        metavar="STEPS",
+        help="first steps in which only the value function learns (for --init-model)",
     )
     parser.add_argument("--n-steps", type=int, help="PPO steps per env per rollout")
     parser.add_argument("--batch-size", type=int, help="PPO minibatch size")
@@ -114,6 +132,8 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "eval_every": args.eval_every,
         "eval_trees": args.eval_trees,
         "time_penalty_per_s": args.time_penalty,
+        "value_warmup_steps": args.value_warmup,
+        "init_logit_scale": args.init_logit_scale,
     }
     return TrainConfig(
         env_id=args.env,
@@ -122,6 +142,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         seed=args.seed,
         normalize=args.normalize,
         recurrent=args.recurrent,
+        worker_rollouts=args.worker_rollouts,
         init_model=None if args.init_model is None else str(args.init_model),
         render_tracking_frames=not args.pose_only_tracking_frames,
         ppo=PPOConfig(**{k: v for k, v in ppo.items() if v is not None}),

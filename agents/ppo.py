@@ -80,12 +80,16 @@ def is_recurrent_file(path: str | Path) -> bool:
     return str(module).startswith(RECURRENT_POLICY_MODULE)
 
 
-def load_model(path: str | Path, env: Any = None, **kwargs: Any) -> Any:
+def load_model(
+    path: str | Path, env: Any = None, algorithm: type | None = None, **kwargs: Any
+) -> Any:
     """Load a stable-baselines3 PPO or sb3-contrib RecurrentPPO model (on the CPU).
 
     Args:
         path: The model's ``.zip`` file.
         env: Passed to ``load`` (training envs when resuming).
+        algorithm: The class to load it as (a PPO subclass such as the trainer's
+            ``WorkerRolloutPPO``); None picks PPO or RecurrentPPO from the file.
         **kwargs: More ``load`` arguments (e.g. ``tensorboard_log``).
 
     Raises:
@@ -97,7 +101,8 @@ def load_model(path: str | Path, env: Any = None, **kwargs: Any) -> Any:
     if not path.is_file():
         raise FileNotFoundError(f"model file {path} does not exist")
     try:
-        algorithm = algorithm_class(is_recurrent_file(path))
+        if algorithm is None:
+            algorithm = algorithm_class(is_recurrent_file(path))
         return algorithm.load(path, env=env, device="cpu", **kwargs)
     except Exception as exc:  # SB3 raises ValueError, KeyError, pickle and zip errors
         raise ModelFileError(

@@ -15,26 +15,31 @@ rollouts of ``RECIPE_N_STEPS`` per env.
 
 ``train_steps_per_s_fast``: the training mode (oracle tracker, pose-only tracking frames) with the
 fixed action mix of :mod:`branch_gym.training.action_mix` (one rotation every 10 steps, whatever
-the policy sends), the default rollout length (``PPOConfig.n_steps``, 256 per env) and one update;
-the learner's torch threads follow ``train.py`` (:class:`TorchThreadsCallback`: one while the
-workers step, ``UPDATE_TORCH_THREADS`` in the update). Compare it with twice
-``env_steps_per_s_mix`` (bench_env, one core, the same mix): ``train_over_env_fast`` (bench/run.py,
-both figures of one run) is their ratio (target >= 0.8).
-``train_steps_per_s_fast_4envs`` is the same 512 steps with 4 env processes on the same cores: a
-step that rotates costs ~8x one that does not, and ``SubprocVecEnv`` steps its envs in lockstep,
-so with 2 envs one core idles while the other finishes a rotation; more envs than cores fill it.
+the policy sends), the default rollout length (``PPOConfig.n_steps``, 256 per env),
+``FAST_ROLLOUTS`` rollouts and updates, and the rollouts collected in the env processes
+(``TrainConfig.worker_rollouts``); the learner's torch threads follow ``train.py``
+(:class:`TorchThreadsCallback`: one while the workers step, ``UPDATE_TORCH_THREADS`` in the
+update). Compare it with twice ``env_steps_per_s_mix`` (bench_env, one core, the same mix):
+``train_over_env_fast`` (bench/run.py, both figures of one run) is their ratio (target >= 0.8).
+``train_steps_per_s_fast_lockstep`` is the same run with SB3's lockstep collection (a step that
+rotates costs ~8x one that does not, and every vector step waits for the slower env), and
+``train_steps_per_s_fast_4envs`` the lockstep with 4 env processes on the same cores (more envs
+than cores fill the core that would idle).
 """
 
 from __future__ import annotations
 
-import functools
 import time
 
 from branch_gym.training.action_mix import FixedActionMix
 from branch_gym.training.callbacks import TorchThreadsCallback
 from branch_gym.training.config import PPOConfig, TrainConfig
-from branch_gym.training.envs import make_env, make_train_env, policy_class
-from branch_gym.training.train import UPDATE_TORCH_THREADS, apply_first_action_logit
+from branch_gym.training.envs import make_train_env, policy_class
+from branch_gym.training.train import (
+    UPDATE_TORCH_THREADS,
+    apply_first_action_logit,
+    training_algorithm,
+)
 
 N_ENVS = 2
 # Our choice: one rollout of 12 steps per env and one update per tracker keep the whole bench
@@ -46,30 +51,32 @@ SEED = 0
 RECIPE_N_STEPS = 64
 RECIPE_HOLD_LOGIT = 3.0
 FAST_N_STEPS = PPOConfig().n_steps  # the shipped recipe's rollout length
-FAST_STEPS = FAST_N_STEPS * N_ENVS  # steps of the fast figures (one rollout, one update)
+FAST_STEPS = FAST_N_STEPS * N_ENVS  # steps of one rollout of the fast figures
+# Our choice: 4 rollouts and updates (~20 scans, ~1 min): one rollout holds ~5 scans per env, and
+# how long the slower env's scans take varies by ~20 % from one rollout to the next.
+FAST_ROLLOUTS = 4
 
 
-def _mixed_env(config: TrainConfig, rank: int) -> FixedActionMix:
-    """Training env ``rank`` playing the fixed action mix (picklable for ``SubprocVecEnv``)."""
-    return FixedActionMix(make_env(config, rank))
+def train_steps_per_s_fast(n_envs: int = N_ENVS, worker_rollouts: bool = True) -> float:
+    """Env steps per second of ``PPO.learn`` (training mode, fixed action mix, ``FAST_ROLLOUTS``).
 
-
-def train_steps_per_s_fast(n_envs: int = N_ENVS) -> float:
-    """Env steps per second of ``PPO.learn`` (training mode, fixed action mix, ``FAST_STEPS``)."""
+    Args:
+        n_envs: Env processes.
+        worker_rollouts: Rollouts collected in the env processes (``TrainConfig``); False is
+            SB3's lockstep.
+    """
     import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.vec_env import SubprocVecEnv
 
     threads = torch.get_num_threads()
     ppo = PPOConfig(n_steps=FAST_STEPS // n_envs)
-    steps = ppo.n_steps * n_envs
+    steps = ppo.n_steps * n_envs * FAST_ROLLOUTS
     config = TrainConfig(
         timesteps=steps, n_envs=n_envs, seed=SEED, tracker="oracle", eval_every=0, ppo=ppo,
-        render_tracking_frames=False, normalize=False,
+        render_tracking_frames=False, normalize=False, worker_rollouts=worker_rollouts,
     )  # fmt: skip
-    venv = SubprocVecEnv([functools.partial(_mixed_env, config, rank) for rank in range(n_envs)])
+    venv = make_train_env(config, wrapper=FixedActionMix)
     try:
-        model = PPO(
+        model = training_algorithm(config)(
             policy_class(venv.observation_space), venv, seed=SEED, device="cpu", verbose=0,
             **ppo.sb3_kwargs(venv.observation_space),
         )  # fmt: skip
@@ -120,7 +127,8 @@ def _train_steps_per_s(tracker: str, n_steps: int = BENCH_N_STEPS, **recipe: obj
 def run() -> dict[str, float]:
     return {
         "train_steps_per_s_fast": train_steps_per_s_fast(),
-        "train_steps_per_s_fast_4envs": train_steps_per_s_fast(n_envs=4),
+        "train_steps_per_s_fast_lockstep": train_steps_per_s_fast(worker_rollouts=False),
+        "train_steps_per_s_fast_4envs": train_steps_per_s_fast(n_envs=4, worker_rollouts=False),
         "train_steps_per_s": _train_steps_per_s("lk"),
         "train_steps_per_s_oracle": _train_steps_per_s("oracle"),
         "train_steps_per_s_trigger_recipe": _train_steps_per_s(

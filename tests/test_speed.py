@@ -113,3 +113,18 @@ def test_action_mix_rotates_every_block():
     changes = [k for k in range(1, len(angles)) if angles[k] != angles[k - 1]]
     assert angles[0] == 0.0
     assert changes == [MIX_STEPS_PER_ROTATION * i for i in (1, 2, 3)]
+
+
+def test_bench_ratios_come_from_figures_of_the_same_run():
+    from bench.run import derived_figures
+
+    measured = {
+        "train_steps_per_s_fast": 45.0,
+        "train_steps_per_s_fast_lockstep": 30.0,
+        "env_steps_per_s_mix": 30.0,
+    }
+    assert derived_figures(measured) == {
+        "train_over_env_fast": 0.75,
+        "train_over_env_fast_lockstep": 0.5,
+    }
+    assert derived_figures({"train_steps_per_s_fast": 45.0}) == {}  # no env figure this run

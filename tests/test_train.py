@@ -23,7 +23,7 @@ from agents.ppo import (
 )
 from branch_gym.evaluation.episodes import run_episode, run_trial
 from branch_gym.scan import ScanConfig
-from branch_gym.training.callbacks import TorchThreadsCallback, scan_metrics
+from branch_gym.training.callbacks import TorchThreadsCallback, ValueWarmupCallback, scan_metrics
 from branch_gym.training.checkpoints import CheckpointError, read_checkpoint
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.envs import (
@@ -43,7 +43,7 @@ from branch_gym.training.seeds import (
     train_seed_range,
     train_tree_seed,
 )
-from branch_gym.training.train import train
+from branch_gym.training.train import scale_action_logits, train
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = {"tracker": "oracle", "end_height_m": 0.33}  # ~6 steps per episode
@@ -174,6 +174,46 @@ def test_torch_threads_follow_the_training_phase() -> None:
     assert torch.get_num_threads() == initial
     with pytest.raises(ValueError, match="update_threads=0"):
         TorchThreadsCallback(rollout_threads=1, update_threads=0)
+
+
+def test_value_warmup_trains_only_the_critic_until_its_step_count() -> None:
+    import torch
+    from stable_baselines3 import PPO
+
+    model = PPO(
+        "MlpPolicy", "CartPole-v1", n_steps=32, batch_size=32, n_epochs=2, seed=0, device="cpu"
+    )
+    before = {name: p.detach().clone() for name, p in model.policy.named_parameters()}
+    model.learn(32, callback=ValueWarmupCallback(32))
+    changed = {
+        name for name, p in model.policy.named_parameters() if not torch.equal(p, before[name])
+    }
+    assert changed and all(n.startswith(("value_net", "mlp_extractor.value_net")) for n in changed)
+    model.learn(32, callback=ValueWarmupCallback(32), reset_num_timesteps=False)
+    assert not torch.equal(model.policy.action_net.weight, before["action_net.weight"])
+    with pytest.raises(ValueError, match="value_warmup_steps"):
+        TrainConfig(value_warmup_steps=100, recurrent=True)
+
+
+def test_init_logit_scale_sharpens_sampling_and_keeps_the_argmax() -> None:
+    import torch
+    from stable_baselines3 import PPO
+
+    model = PPO("MlpPolicy", "CartPole-v1", seed=0, device="cpu")
+    observations = torch.as_tensor(
+        np.random.default_rng(0).normal(size=(64, 4)), dtype=torch.float32
+    )
+    with torch.no_grad():
+        model.policy.action_net.bias.copy_(torch.tensor([0.3, -0.2]))
+        before = model.policy.get_distribution(observations).distribution.probs
+        scale_action_logits(model, 3.0)
+        after = model.policy.get_distribution(observations).distribution.probs
+    assert torch.equal(before.argmax(1), after.argmax(1))
+    assert (after.max(1).values > before.max(1).values).all()  # temperature 1/3: sharper
+    with pytest.raises(ValueError, match="init_logit_scale"):
+        TrainConfig(init_logit_scale=3.0)  # without an init model
+    with pytest.raises(ValueError, match="init_logit_scale"):
+        TrainConfig(init_model="m.zip", init_logit_scale=0.0)
 
 
 def test_policy_class_follows_the_observation_space() -> None:

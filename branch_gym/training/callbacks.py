@@ -13,6 +13,10 @@ cut by the env's step limit have no final row and are not counted.
 :class:`TorchThreadsCallback` gives the learner's torch one thread while the env workers step
 (the policy's forward pass is ~1 ms; more threads only compete with the workers for the cores)
 and every core during the update, when the workers wait.
+
+:class:`ValueWarmupCallback` lets only the value function learn during a run's first steps: a
+run started from a policy fitted elsewhere (a DAgger student, ``TrainConfig.init_model``) has an
+untrained critic, whose advantages would otherwise push the policy in random directions.
 """
 
 from __future__ import annotations
@@ -156,3 +160,40 @@ class TqdmCallback(BaseCallback):
         if self._bar is not None:
             self._bar.close()
             self._bar = None
+
+
+class ValueWarmupCallback(BaseCallback):
+    """Freeze every policy parameter but the value function's until ``steps`` env steps.
+
+    Before each update (the end of a rollout) the parameters that do not belong to the value
+    function (the features extractor shared with the policy, the policy's MLP and its action
+    head) get ``requires_grad`` False while ``num_timesteps <= steps``, True afterwards; Adam
+    leaves parameters without gradients untouched. A resumed run re-applies it at its next
+    update.
+
+    Args:
+        steps: Env steps of value-only learning (0: off).
+    """
+
+    def __init__(self, steps: int) -> None:
+        super().__init__()
+        if steps < 0:
+            raise ValueError(f"value warm-up steps must be >= 0, got {steps}")
+        self.steps = steps
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_rollout_end(self) -> None:
+        warming_up = self.num_timesteps <= self.steps
+        for parameter in policy_parameters(self.model.policy):
+            parameter.requires_grad_(not warming_up)
+
+
+def policy_parameters(policy: Any) -> list[torch.nn.Parameter]:
+    """An SB3 actor-critic policy's parameters that are not the value function's."""
+    value_modules = [policy.value_net, policy.mlp_extractor.value_net]
+    if not policy.share_features_extractor:
+        value_modules.append(policy.vf_features_extractor)
+    value = {id(p) for module in value_modules for p in module.parameters()}
+    return [p for p in policy.parameters() if id(p) not in value]

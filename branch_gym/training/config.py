@@ -144,9 +144,23 @@ class TrainConfig:
             the same hyper-parameters. Our choice (issue 17, a recurrent variant if memory
             helps): off; the v1 envs' coverage map is already an explicit memory. A resumed run
             cannot switch it.
+        worker_rollouts: Each env process plays whole rollouts under a copy of the policy
+            (:mod:`branch_gym.training.worker_rollouts`) instead of SB3's lockstep, where every
+            step waits for the slowest env (a rotation costs ~8x a plain step). The same PPO;
+            its sampled actions differ from a lockstep run's. Not with ``normalize`` or
+            ``recurrent``; a resumed run cannot switch it. Our choice: off by default (older
+            runs resume unchanged); the README recipes and the bench use it.
         init_model: A model file whose policy weights a new run starts from instead of a
             random initialisation (a PPO model of the same env and ``ppo`` network shape, e.g.
             a DAgger student of :mod:`branch_gym.training.imitation`); None starts fresh.
+        init_logit_scale: Multiplies the action logits of ``init_model``'s policy (its action
+            head's weights and bias): a discrete policy fitted as a classifier (a DAgger student)
+            samples at temperature ``1 / init_logit_scale``, its argmax unchanged. 1: as fitted.
+            Our choice for the v2 student's fine-tuning: 3 (sampled at temperature 1 it rotated
+            9 times per scan, against 1.7 by argmax, and 30 % of those scans failed).
+        value_warmup_steps: Env steps at the start of the run during which only the value
+            function learns (:class:`~branch_gym.training.callbacks.ValueWarmupCallback`): a
+            policy from ``init_model`` comes without a trained critic. 0: off (our default).
         ppo: PPO hyper-parameters.
     """
 
@@ -166,7 +180,10 @@ class TrainConfig:
     time_penalty_per_s: float | None = None
     normalize: bool = False
     recurrent: bool = False
+    worker_rollouts: bool = False
     init_model: str | None = None
+    init_logit_scale: float = 1.0
+    value_warmup_steps: int = 0
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
     def __post_init__(self) -> None:
@@ -175,11 +192,22 @@ class TrainConfig:
         require_int(self, "timesteps", "n_envs", minimum=1)
         require_int(self, "seed", minimum=0, maximum=MAX_RUN_SEEDS - 1)
         require_int(self, "checkpoint_every", minimum=1)
+        require_int(self, "value_warmup_steps", minimum=0)
+        require_positive(self, "init_logit_scale")
+        if self.init_logit_scale != 1.0 and self.init_model is None:
+            raise ValueError("TrainConfig.init_logit_scale applies to an init_model only")
         require_int(self, "eval_every", minimum=0)
         require_int(self, "eval_trees", minimum=1, maximum=MAX_EVAL_TREES)
-        for name in ("render_tracking_frames", "normalize", "recurrent"):
+        for name in ("render_tracking_frames", "normalize", "recurrent", "worker_rollouts"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrainConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if self.worker_rollouts and (self.normalize or self.recurrent):
+            raise ValueError(
+                "TrainConfig.worker_rollouts works with plain PPO only: the workers act on raw "
+                "observations (normalize=False) without an LSTM state (recurrent=False)"
+            )
+        if self.value_warmup_steps and self.recurrent:
+            raise ValueError("TrainConfig.value_warmup_steps needs recurrent=False")
         if self.init_model is not None and (self.recurrent or not str(self.init_model)):
             raise ValueError("TrainConfig.init_model needs a model file path and recurrent=False")
         if not isinstance(self.ppo, PPOConfig):

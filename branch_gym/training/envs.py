@@ -2,7 +2,9 @@
 
 Training: ``n_envs`` copies of the run's env id, each wrapped in :class:`TreeSeedWrapper` (its own
 sequence of training trees) and SB3's ``Monitor``, in a ``SubprocVecEnv`` when ``n_envs > 1``
-(a ``DummyVecEnv`` otherwise), optionally inside ``VecNormalize``. Evaluation: one plain env in
+(a ``DummyVecEnv`` otherwise), optionally inside ``VecNormalize``; with
+``TrainConfig.worker_rollouts`` each env's outermost wrapper is
+:class:`~branch_gym.training.worker_rollouts.PolicyRolloutWorker`. Evaluation: one plain env in
 this process, reset on the held-out trees one by one (:mod:`branch_gym.training.seeds`).
 """
 
@@ -10,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import os
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
@@ -28,9 +31,20 @@ DICT_LSTM_POLICY = "MultiInputLstmPolicy"
 FLAT_LSTM_POLICY = "MlpLstmPolicy"
 
 
-def make_env(config: TrainConfig, rank: int) -> gym.Env:
-    """Training env ``rank``: the env id with the run's settings, its trees, episode stats."""
+def make_env(
+    config: TrainConfig, rank: int, wrapper: Callable[[gym.Env], gym.Env] | None = None
+) -> gym.Env:
+    """Training env ``rank``: the env id with the run's settings, its trees, episode stats.
+
+    Args:
+        config: The run.
+        rank: The env's index in the vector env (its tree sequence).
+        wrapper: Applied around the monitored env (e.g. the bench's fixed action mix), inside
+            the worker-rollout wrapper when ``config.worker_rollouts``.
+    """
     from stable_baselines3.common.monitor import Monitor
+
+    from branch_gym.training.worker_rollouts import PolicyRolloutWorker
 
     os.environ.setdefault("OMP_NUM_THREADS", str(_WORKER_THREADS))
     import cv2
@@ -39,21 +53,30 @@ def make_env(config: TrainConfig, rank: int) -> gym.Env:
     cv2.setNumThreads(_WORKER_THREADS)
     torch.set_num_threads(_WORKER_THREADS)
     env = gym.make(config.env_id, **config.env_kwargs())
-    env = TreeSeedWrapper(env, config.seed, rank, config.n_envs)
-    return Monitor(env)
+    env = Monitor(TreeSeedWrapper(env, config.seed, rank, config.n_envs))
+    if wrapper is not None:
+        env = wrapper(env)
+    return PolicyRolloutWorker(env, rank) if config.worker_rollouts else env
 
 
-def make_train_env(config: TrainConfig, normalizer: Any = None) -> Any:
+def make_train_env(
+    config: TrainConfig,
+    normalizer: Any = None,
+    wrapper: Callable[[gym.Env], gym.Env] | None = None,
+) -> Any:
     """The vectorised training envs (``VecNormalize`` on top when ``config.normalize``).
 
     Args:
         config: The run.
         normalizer: Saved ``VecNormalize`` statistics to continue from (resume), or None for
             fresh ones.
+        wrapper: Applied to every env (:func:`make_env`); picklable for ``SubprocVecEnv``.
     """
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
-    factories = [functools.partial(make_env, config, rank) for rank in range(config.n_envs)]
+    factories = [
+        functools.partial(make_env, config, rank, wrapper) for rank in range(config.n_envs)
+    ]
     venv = SubprocVecEnv(factories) if config.n_envs > 1 else DummyVecEnv(factories)
     if not config.normalize:
         return venv

@@ -1,7 +1,9 @@
 """Train a PPO rotation policy: new runs, resumed runs, checkpoints, held-out evaluation.
 
 The algorithm is stable-baselines3's ``PPO``, or sb3-contrib's ``RecurrentPPO`` with an LSTM
-policy when ``TrainConfig.recurrent``.
+policy when ``TrainConfig.recurrent``, or PPO with rollouts collected in the env processes
+(:class:`~branch_gym.training.worker_rollouts.WorkerRolloutPPO`) when
+``TrainConfig.worker_rollouts``.
 
 :func:`train` is what ``train.py`` at the repository root calls. A run lives in one folder
 (:class:`branch_gym.training.paths.RunPaths`); ``resume=True`` continues it from its latest
@@ -20,7 +22,12 @@ from typing import Any
 import numpy as np
 
 from agents.ppo import algorithm_class, load_model, load_normalizer
-from branch_gym.training.callbacks import ScanMetricsCallback, TorchThreadsCallback, TqdmCallback
+from branch_gym.training.callbacks import (
+    ScanMetricsCallback,
+    TorchThreadsCallback,
+    TqdmCallback,
+    ValueWarmupCallback,
+)
 from branch_gym.training.checkpoints import (
     CheckpointCallback,
     read_checkpoint,
@@ -92,9 +99,11 @@ def train(
     checkpoint = _check_run_folder(config, paths, resume)
     model, normalizer, best = None, None, None
     if checkpoint is not None:  # load before starting env processes: bad files fail fast
-        # The run's config.json pins ``recurrent`` (resume_conflicts); load_model reads the class.
+        # The run's config.json pins ``recurrent`` and ``worker_rollouts`` (resume_conflicts).
         model = load_model(
-            paths.checkpoints / checkpoint.model, tensorboard_log=str(paths.tensorboard)
+            paths.checkpoints / checkpoint.model,
+            algorithm=training_algorithm(config),
+            tensorboard_log=str(paths.tensorboard),
         )
         if checkpoint.vecnormalize is not None:
             normalizer = load_normalizer(paths.checkpoints / checkpoint.vecnormalize)
@@ -121,6 +130,11 @@ def train(
         callbacks: list[Any] = [
             TorchThreadsCallback(_TORCH_THREADS, UPDATE_TORCH_THREADS),
             ScanMetricsCallback(),
+            *(
+                [ValueWarmupCallback(config.value_warmup_steps)]
+                if config.value_warmup_steps
+                else []
+            ),
             CheckpointCallback(paths, config.checkpoint_every, best_reward),
             *([evaluator] if evaluator is not None else []),
             *([TqdmCallback(config.timesteps)] if progress else []),
@@ -222,7 +236,7 @@ def new_model(config: TrainConfig, env: Any, tensorboard_log: str | None = None)
         env: A (vector) env of the run's spaces.
         tensorboard_log: TensorBoard folder, or None for no logs.
     """
-    model = algorithm_class(config.recurrent)(
+    model = training_algorithm(config)(
         policy_class(env.observation_space, config.recurrent),
         env,
         seed=config.seed,
@@ -233,9 +247,19 @@ def new_model(config: TrainConfig, env: Any, tensorboard_log: str | None = None)
     )
     if config.init_model is not None:
         load_policy_weights(model, config.init_model)
+        scale_action_logits(model, config.init_logit_scale)
     else:
         apply_first_action_logit(model, config.ppo.first_action_logit_init)
     return model
+
+
+def training_algorithm(config: TrainConfig) -> type:
+    """The run's algorithm class: PPO, RecurrentPPO, or PPO with worker rollouts."""
+    if config.worker_rollouts:
+        from branch_gym.training.worker_rollouts import WorkerRolloutPPO
+
+        return WorkerRolloutPPO
+    return algorithm_class(config.recurrent)
 
 
 def load_policy_weights(model: Any, path: str | Path) -> None:
@@ -251,6 +275,20 @@ def load_policy_weights(model: Any, path: str | Path) -> None:
         model.policy.load_state_dict(source.policy.state_dict())
     except RuntimeError as exc:
         raise ValueError(f"init model {path} does not fit the run's network: {exc}") from exc
+
+
+def scale_action_logits(model: Any, scale: float) -> None:
+    """Multiply a policy's action head (weights and bias) by ``scale``.
+
+    For a discrete policy the logits scale: sampling at temperature ``1 / scale`` with the same
+    argmax. For a continuous one the action mean scales; only 1 leaves it unchanged.
+    """
+    import torch
+
+    if scale != 1.0:
+        with torch.no_grad():
+            model.policy.action_net.weight.mul_(scale)
+            model.policy.action_net.bias.mul_(scale)
 
 
 def apply_first_action_logit(model: Any, bonus: float) -> None:
