@@ -31,6 +31,8 @@ from branch_gym.evaluation.runner import (
 )
 from branch_gym.evaluation.trials import (
     TrialRecord,
+    config_hash,
+    config_to_dict,
     json_scalar,
     load_trial,
     policy_slug,
@@ -470,3 +472,16 @@ def test_selection_rejects_missing_models_and_empty_prices(tmp_path: Path) -> No
         select_model([tmp_path / "nope.zip"], tmp_path / "eval")
     with pytest.raises(ValueError, match="at least one model"):
         select_model([tmp_path / "m.zip"], tmp_path / "eval", prices_s=[])
+
+
+def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
+    import hashlib
+    from dataclasses import replace
+
+    config = ScanConfig()
+    before = config_to_dict(config)  # the config as published before the two fields existed
+    del before["render_tracking_frames"], before["modeler"]["secondary_trust_redetected"]
+    published = hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()[:16]
+    assert config_hash(config) == published
+    redetected = replace(config, modeler=replace(config.modeler, secondary_trust_redetected=True))
+    assert config_hash(redetected) != published

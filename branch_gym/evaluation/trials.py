@@ -154,9 +154,14 @@ def trial_path(out: Path, policy: str, seed: int) -> Path:
     return out / TRIALS_DIR / policy_slug(policy) / f"{seed}.json"
 
 
-# ScanConfig.render_tracking_frames (added with the fast oracle mode): True renders every frame,
-# as every scan did before it existed.
-HASH_NEUTRAL_DEFAULTS = {"render_tracking_frames": True}
+# Fields added after results were published, by dotted path into the config, with the value that
+# reproduces the earlier behaviour. ScanConfig.render_tracking_frames (the fast oracle mode):
+# True renders every frame, as every scan did before it existed.
+# ModelerConfig.secondary_trust_redetected: False is the rule every table was measured with.
+HASH_NEUTRAL_DEFAULTS = {
+    "render_tracking_frames": True,
+    "modeler.secondary_trust_redetected": False,
+}
 
 
 def config_to_dict(config: Any) -> dict:
@@ -169,14 +174,18 @@ def config_to_dict(config: Any) -> dict:
 def config_hash(config: Any) -> str:
     """Short stable hash of a config dataclass: trials are comparable only under equal hashes.
 
-    Top-level fields added after results were published (``HASH_NEUTRAL_DEFAULTS``) are left
-    out while they hold the value that reproduces the earlier behaviour, so that saved trials
-    stay valid.
+    Fields added after results were published (``HASH_NEUTRAL_DEFAULTS``, dotted paths into
+    nested configs) are left out while they hold the value that reproduces the earlier
+    behaviour, so that saved trials stay valid.
     """
     data = config_to_dict(config)
-    for name, neutral in HASH_NEUTRAL_DEFAULTS.items():
-        if name in data and data[name] == neutral:
-            del data[name]
+    for path, neutral in HASH_NEUTRAL_DEFAULTS.items():
+        *parents, name = path.split(".")
+        section = data
+        for parent in parents:
+            section = section.get(parent) if isinstance(section, dict) else None
+        if isinstance(section, dict) and name in section and section[name] == neutral:
+            del section[name]
     text = json.dumps(data, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

@@ -49,6 +49,7 @@ class _Secondary:
     model: BranchModel | None = None
     junction: np.ndarray | None = None  # (3,) primary point its ray back met (connection test)
     n_extension: int = 0  # leading model points that bridge the junction, not observed
+    redetected: bool = False  # a detection of the latest add_detections call joined it
 
 
 class SecondaryBranches:
@@ -92,6 +93,8 @@ class SecondaryBranches:
         """
         camera_center = None if frame is None else frame.T_world_camera[:3, 3]
         created = 0
+        for branch in self._branches:
+            branch.redetected = False
         for det in detections:
             if len(det.points) < self.config.secondary_min_points:
                 continue
@@ -101,6 +104,7 @@ class SecondaryBranches:
             if target is not None:
                 self._merge_observations(target, det.points, det.radii)
                 target.detections += 1
+                target.redetected = True
                 continue
             junction = None if primary is None else self._junction(det.points, primary.points)
             if junction is None and primary is not None and frame is not None:
@@ -122,7 +126,8 @@ class SecondaryBranches:
         """+1 for each visible branch whose projection lands on the mask, -1 otherwise; prune.
 
         A branch is visible when at least ``secondary_trust_in_view`` of its observed points (and
-        two) project into the image.
+        two) project into the image. With ``secondary_trust_redetected`` a branch that a
+        detection of this frame joined (the last :meth:`add_detections`) counts as on the mask.
         """
         cfg = self.config
         kept = []
@@ -131,8 +136,9 @@ class SecondaryBranches:
                 continue
             observed = branch.model.points[branch.n_extension :]  # not the bridged junction
             on_mask, visible = _mask_fraction(observed, frame, cfg.image_margin_px)
+            supported = on_mask >= 0.5 or (cfg.secondary_trust_redetected and branch.redetected)
             if visible >= max(2, cfg.secondary_trust_in_view * len(observed)):
-                branch.trust += 1 if on_mask >= 0.5 else -1
+                branch.trust += 1 if supported else -1
                 branch.model.trust = branch.trust
             if branch.trust >= cfg.secondary_trust_min:
                 kept.append(branch)
@@ -240,6 +246,7 @@ class SecondaryBranches:
                     ):
                         a.detections += b.detections
                         a.trust = max(a.trust, b.trust)
+                        a.redetected = a.redetected or b.redetected
                         if a.junction is None:
                             a.junction = b.junction
                         self._branches.remove(b)
