@@ -11,8 +11,10 @@ from scipy.spatial import cKDTree
 from test_curve2d import PRIMARY, PRIMARY_HALF_WIDTH, SIDE_HALF_WIDTH, H, W, _dense, _segment, _tube
 
 from recon.curve2d.fit import fit_mask_curves
-from recon.curve2d.primary import PrimaryPrior
+from recon.curve2d.path_search import SearchGraph
+from recon.curve2d.primary import PrimaryPrior, find_primary
 from recon.curve2d.skeleton import SkeletonConfig
+from recon.curve2d.skeleton_graph import SkeletonEdge, SkeletonGraph
 from recon.curve2d.types import Curve2DConfig
 from recon.geometry.bezier import CubicBezier
 
@@ -193,3 +195,43 @@ def test_wire_crossing_the_trunk_leaves_the_primary_on_the_trunk(angle_deg: floa
     result = fit_mask_curves(mask | _tube(wire, 1.5))
     assert result.primary is not None and _primary_error_px(result) < 2.0
     assert all(_matching_secondary(result, s) is not None for s in sides)
+
+
+def _line_pixels(a: tuple[int, int], b: tuple[int, int]) -> np.ndarray:
+    """(P, 2) int pixels (u, v) from ``a`` to ``b``, one per unit step of the longer axis."""
+    n = int(max(abs(b[0] - a[0]), abs(b[1] - a[1]))) + 1
+    return np.rint(np.linspace(a, b, n)).astype(int)
+
+
+def _crossing_graph() -> SkeletonGraph:
+    """The skeleton of a primary crossed by side branches on both sides at one height, as the
+    mask of tree 40 gave it (measured): the crossing split into two junctions on one row, the
+    top of the primary and the left branch at junction 0, its bottom and the right branch at 1."""
+    nodes = [(164, 174), (166, 174), (150, 10), (309, 149), (10, 180), (170, 229)]
+    kinds = ("junction", "junction", "endpoint", "endpoint", "endpoint", "endpoint")
+    ends = [(0, 2), (0, 1), (0, 4), (1, 3), (1, 5)]
+    edges = []
+    for start, end in ends:
+        pixels = _line_pixels(nodes[start], nodes[end])
+        edges.append(SkeletonEdge(start, end, pixels, np.full(len(pixels), 8.0)))
+    pixels = np.unique(np.concatenate([e.pixels_uv for e in edges]), axis=0)
+    return SkeletonGraph(
+        pixels, np.full(len(pixels), 8.0), np.array(nodes, float), kinds, tuple(edges)
+    )
+
+
+def test_a_level_edge_between_the_junctions_of_a_crossing_keeps_the_primary_whole() -> None:
+    direction = np.array([0.0, -1.0])
+    spans = {}
+    for level_px in (0.0, Curve2DConfig().crossing_level_px):
+        config = Curve2DConfig(crossing_level_px=level_px)
+        _, curve, _, _, _ = find_primary(SearchGraph(_crossing_graph()), direction, config)
+        v = curve(np.linspace(0.0, 1.0, 50))[:, 1]
+        spans[level_px] = (v.min(), v.max())
+    # Every edge oriented up cuts the primary at the crossing: an L (a side branch, then the
+    # primary) wins. Walking the level edge both ways gives the whole primary, 10 -> 229 px.
+    assert spans[0.0][1] - spans[0.0][0] < 200
+    whole = spans[Curve2DConfig().crossing_level_px]
+    assert whole[0] < 15 and whole[1] > 225
+    with pytest.raises(ValueError, match="crossing_level_px"):
+        Curve2DConfig(crossing_level_px=-1.0)

@@ -3,7 +3,8 @@
 :class:`SearchGraph` walks the graph by half-edges (id 2e walks edge e forward, 2e + 1 backward)
 and gathers a path's pixels and radii; :func:`enumerate_paths` lists the simple paths extending
 given starts over an adjacency: :func:`oriented_adjacency` (every edge along the motion
-direction, a DAG: primary search) or :func:`undirected_adjacency` (secondary search).
+direction but level edges between junctions: primary search) or :func:`undirected_adjacency`
+(secondary search).
 :func:`component_reach` bounds the path length per connected component.
 """
 
@@ -91,15 +92,30 @@ def enumerate_paths(
     return paths, False
 
 
-def oriented_adjacency(sg: SearchGraph, direction: np.ndarray) -> list[list[tuple[int, int]]]:
-    """Outgoing half-edges per node, each edge oriented along ``direction`` (a DAG)."""
-    progress = sg.graph.node_uv @ direction
-    adjacency: list[list[tuple[int, int]]] = [[] for _ in range(sg.graph.n_nodes)]
-    for e, edge in enumerate(sg.graph.edges):
+def oriented_adjacency(
+    sg: SearchGraph, direction: np.ndarray, crossing_level_px: float = 0.0
+) -> list[list[tuple[int, int]]]:
+    """Outgoing half-edges per node, each edge oriented along ``direction``.
+
+    Args:
+        sg: The graph.
+        direction: (2,) unit motion direction (u, v).
+        crossing_level_px: An edge joining two junctions whose ends' progress along
+            ``direction`` differs by at most this gets both half-edges (the split junction of a
+            crossing, ``Curve2DConfig.crossing_level_px``); 0 gives a DAG.
+    """
+    graph = sg.graph
+    progress = graph.node_uv @ direction
+    junction = np.array([kind == "junction" for kind in graph.node_kind], dtype=bool)
+    adjacency: list[list[tuple[int, int]]] = [[] for _ in range(graph.n_nodes)]
+    for e, edge in enumerate(graph.edges):
         # Ties in progress break by node index, so every edge gets one consistent orientation.
         forward = (progress[edge.start], edge.start) < (progress[edge.end], edge.end)
         half_edge = 2 * e if forward else 2 * e + 1
         adjacency[sg.tail(half_edge)].append((half_edge, sg.head(half_edge)))
+        level = abs(progress[edge.start] - progress[edge.end]) <= crossing_level_px
+        if crossing_level_px > 0.0 and level and junction[edge.start] and junction[edge.end]:
+            adjacency[sg.head(half_edge)].append((half_edge ^ 1, sg.tail(half_edge)))
     return adjacency
 
 

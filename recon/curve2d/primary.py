@@ -142,7 +142,7 @@ def find_primary(
     branch that rises along the view after a rotation must not replace a well-supported primary.
     Without an agreeing path the plain best is returned (and the modeler finds it Inconsistent).
     """
-    adjacency = oriented_adjacency(sg, direction)
+    adjacency = oriented_adjacency(sg, direction, config.crossing_level_px)
     progress = sg.graph.node_uv @ direction
     has_incoming = np.zeros(sg.graph.n_nodes, dtype=bool)
     for out_edges in adjacency:

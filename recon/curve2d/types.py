@@ -63,6 +63,14 @@ class Curve2DConfig:
         tip_tangent_px: Arc length over which the end tangent is measured (ours).
         tip_extension_radii: Longest tip extension, in tip radii (ours: a skeleton ends about
             one radius inside a round or flat end; two allow for its end hook).
+        crossing_level_px: An edge of the skeleton between two junctions whose ends lie within
+            this distance of each other along the motion direction may be walked both ways by
+            the primary search (ours: the inlier threshold's 4 px; 0 orients every edge). Where
+            side branches leave the primary on both sides at about one height, the skeleton
+            splits the crossing into two junctions joined by a short level edge; oriented one
+            way, it cuts the straight primary path in two and an L-shaped path (primary, then a
+            side branch) wins (measured, tree 40: restarts onto a side branch during a
+            rotation, then the primary lost).
         max_primary_paths: Cap on DAG paths examined for the primary (ours: bounds the search
             that is exponential in skeleton loops).
         max_secondary_paths: Cap on paths examined for all secondaries together (ours).
@@ -85,6 +93,7 @@ class Curve2DConfig:
     extend_secondary_tips: bool = True
     tip_tangent_px: float = 10.0
     tip_extension_radii: float = 2.0
+    crossing_level_px: float = 4.0
     max_primary_paths: int = 100
     max_secondary_paths: int = 100
 
@@ -104,7 +113,7 @@ class Curve2DConfig:
             "radius_fence_iqr",
             "tip_tangent_px",
         )
-        require_non_negative(self, "tip_extension_radii")
+        require_non_negative(self, "tip_extension_radii", "crossing_level_px")
         require_non_negative(
             self, "min_primary_length_px", "min_primary_elongation", "min_secondary_length_px"
         )
