@@ -34,12 +34,8 @@ import time
 from branch_gym.training.action_mix import FixedActionMix
 from branch_gym.training.callbacks import TorchThreadsCallback
 from branch_gym.training.config import PPOConfig, TrainConfig
-from branch_gym.training.envs import make_train_env, policy_class
-from branch_gym.training.train import (
-    UPDATE_TORCH_THREADS,
-    apply_first_action_logit,
-    training_algorithm,
-)
+from branch_gym.training.envs import make_train_env
+from branch_gym.training.train import UPDATE_TORCH_THREADS, new_model
 
 N_ENVS = 2
 # Our choice: one rollout of 12 steps per env and one update per tracker keep the whole bench
@@ -76,10 +72,7 @@ def train_steps_per_s_fast(n_envs: int = N_ENVS, worker_rollouts: bool = True) -
     )  # fmt: skip
     venv = make_train_env(config, wrapper=FixedActionMix)
     try:
-        model = training_algorithm(config)(
-            policy_class(venv.observation_space), venv, seed=SEED, device="cpu", verbose=0,
-            **ppo.sb3_kwargs(venv.observation_space),
-        )  # fmt: skip
+        model = new_model(config, venv)
         callback = TorchThreadsCallback(1, UPDATE_TORCH_THREADS)
         start = time.perf_counter()
         model.learn(total_timesteps=steps, callback=callback)
@@ -93,7 +86,6 @@ def train_steps_per_s_fast(n_envs: int = N_ENVS, worker_rollouts: bool = True) -
 def _train_steps_per_s(tracker: str, n_steps: int = BENCH_N_STEPS, **recipe: object) -> float:
     """Env steps per second of ``PPO.learn`` with 2 envs and the given tracker."""
     import torch
-    from stable_baselines3 import PPO
 
     torch.set_num_threads(1)
     hold_logit = float(recipe.pop("first_action_logit_init", 0.0))
@@ -107,15 +99,7 @@ def _train_steps_per_s(tracker: str, n_steps: int = BENCH_N_STEPS, **recipe: obj
     )  # fmt: skip
     venv = make_train_env(config)
     try:
-        model = PPO(
-            policy_class(venv.observation_space),
-            venv,
-            seed=SEED,
-            device="cpu",
-            verbose=0,
-            **ppo.sb3_kwargs(venv.observation_space),
-        )
-        apply_first_action_logit(model, hold_logit)
+        model = new_model(config, venv)  # applies the hold logit of config.ppo
         start = time.perf_counter()
         model.learn(total_timesteps=steps)
         elapsed = time.perf_counter() - start

@@ -4,6 +4,7 @@
 ``config.py``        ``TrainConfig`` (env, seeds, schedule) and ``PPOConfig``, frozen, validated
 ``seeds.py``         disjoint tree seed ranges: training, held-out evaluation, ``eval.py`` trees
 ``envs.py``          training ``VecEnv`` (Subproc / Dummy, Monitor, VecNormalize), evaluation env
+``worker_rollouts.py`` PPO whose rollouts the env processes collect (no per-step lockstep)
 ``callbacks.py``     per-episode scan metrics to TensorBoard, torch threads by phase, tqdm bar
 ``checkpoints.py``   atomic checkpoints (model, VecNormalize, ``checkpoint.json``) for resuming
 ``evaluation.py``    held-out evaluation during training, best model

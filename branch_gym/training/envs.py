@@ -21,6 +21,7 @@ from gymnasium import spaces
 from branch_gym.env.layout import VECTOR_KEY
 from branch_gym.training.config import TrainConfig
 from branch_gym.training.seeds import TreeSeedWrapper
+from branch_gym.training.worker_rollouts import PolicyRolloutWorker
 
 # One BLAS / OpenCV / torch thread per env process: workers run side by side on few cores.
 _WORKER_THREADS = 1
@@ -43,8 +44,6 @@ def make_env(
             the worker-rollout wrapper when ``config.worker_rollouts``.
     """
     from stable_baselines3.common.monitor import Monitor
-
-    from branch_gym.training.worker_rollouts import PolicyRolloutWorker
 
     os.environ.setdefault("OMP_NUM_THREADS", str(_WORKER_THREADS))
     import cv2

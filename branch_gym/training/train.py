@@ -46,6 +46,7 @@ from branch_gym.training.envs import (
 from branch_gym.training.evaluation import EvalResult, HeldOutEvalCallback
 from branch_gym.training.paths import TB_LOG_NAME, RunPaths
 from branch_gym.training.seeds import eval_tree_seeds, train_seed_range
+from branch_gym.training.worker_rollouts import WorkerRolloutPPO
 
 logger = logging.getLogger(__name__)
 
@@ -256,8 +257,6 @@ def new_model(config: TrainConfig, env: Any, tensorboard_log: str | None = None)
 def training_algorithm(config: TrainConfig) -> type:
     """The run's algorithm class: PPO, RecurrentPPO, or PPO with worker rollouts."""
     if config.worker_rollouts:
-        from branch_gym.training.worker_rollouts import WorkerRolloutPPO
-
         return WorkerRolloutPPO
     return algorithm_class(config.recurrent)
 
