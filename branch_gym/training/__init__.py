@@ -10,6 +10,7 @@
 ``evaluation.py``    held-out evaluation during training, best model
 ``selection.py``     checkpoint selection with LK tracking on validation trees (a CLI)
 ``imitation.py``     DAgger students of the privileged policy (a CLI)
+``memory_probe.py`` does memory help: feed-forward against LSTM fits of DAgger labels (a CLI)
 ``calibration.py``   a discrete student's decision threshold: the "hold" logit shifted (a CLI)
 ``action_mix.py``    a fixed action mix for benchmarks (``bench/bench_train.py``)
 ``curve.py``         the training curve figure

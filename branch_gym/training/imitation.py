@@ -486,7 +486,23 @@ def rotation_auc(model: Any, data: RoundData) -> float:
     if rotates.all() or not rotates.any():
         return math.nan
     index = np.arange(len(rotates))
-    scores = 1.0 - action_probabilities(model, data, index, _AUC_BATCH)[:, 0]
+    return rotation_auc_of(action_probabilities(model, data, index, _AUC_BATCH), rotates)
+
+
+def rotation_auc_of(probabilities: np.ndarray, rotates: np.ndarray) -> float:
+    """The AUC of the scores ``1 - P(hold)`` for the states where the expert rotates.
+
+    Args:
+        probabilities: (N, n_actions) action probabilities; action 0 is "hold".
+        rotates: (N,) bool, the expert's label is a rotation.
+
+    Returns:
+        The AUC in [0, 1]; NaN when the labels hold only one class.
+    """
+    rotates = np.asarray(rotates, bool)
+    if rotates.all() or not rotates.any():
+        return math.nan
+    scores = 1.0 - probabilities[:, 0]
     u_statistic = mannwhitneyu(scores[rotates], scores[~rotates]).statistic
     return float(u_statistic / (rotates.sum() * (~rotates).sum()))
 
