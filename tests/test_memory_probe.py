@@ -58,6 +58,8 @@ def test_bad_runs_are_named(tmp_path):
         probe(tmp_path, [1])
     with pytest.raises(ValueError, match="disjoint"):
         probe(tmp_path, [1], train_rounds=[0, 1])
+    with pytest.raises(ValueError, match="epochs"):
+        probe(tmp_path, [1], epochs=0)
 
 
 @pytest.mark.slow

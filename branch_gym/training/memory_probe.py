@@ -194,7 +194,10 @@ def scores(
 
 
 def probe(
-    run: str | Path, test_rounds: list[int], train_rounds: list[int] | None = None
+    run: str | Path,
+    test_rounds: list[int],
+    train_rounds: list[int] | None = None,
+    epochs: int | None = None,
 ) -> dict[str, Any]:
     """Fit both policies on a DAgger run's first rounds; score them on ``test_rounds``.
 
@@ -203,6 +206,7 @@ def probe(
         test_rounds: Rounds whose labels score the fits.
         train_rounds: Rounds whose labels are fitted; by default every round before the first
             test round.
+        epochs: Passes over the labels for both fits; by default the run's own.
 
     Returns:
         ``{"feedforward": {...}, "recurrent": {...}}`` with the scores on the test and on the
@@ -217,6 +221,8 @@ def probe(
     if not config_path.exists():
         raise FileNotFoundError(f"{run} holds no imitation run ({CONFIG_FILE} missing)")
     config = ImitationConfig.from_dict(json.loads(config_path.read_text()))
+    if epochs is not None:
+        config = replace(config, epochs=epochs)
     if train_rounds is None:
         train_rounds = list(range(min(test_rounds)))
     if set(train_rounds) & set(test_rounds) or not train_rounds:
@@ -245,6 +251,7 @@ def probe(
         "test_rounds": test_rounds,
         "train_labels": len(train.expert_actions),
         "test_labels": len(test.expert_actions),
+        "epochs": config.epochs,
     }
     for name, probabilities in (
         ("feedforward", lambda d: action_probabilities(
@@ -278,11 +285,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("run", type=Path, help="a DAgger run folder (imitation.py --out)")
     parser.add_argument("--test-rounds", type=int, nargs="+", required=True)
     parser.add_argument("--train-rounds", type=int, nargs="*", default=None)
+    parser.add_argument(
+        "--epochs", type=int, default=None, help="passes over the labels (default: the run's)"
+    )
     parser.add_argument("--out", type=Path, default=None, help="write the scores as JSON here")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
-        result = probe(args.run, args.test_rounds, args.train_rounds)
+        result = probe(args.run, args.test_rounds, args.train_rounds, args.epochs)
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
