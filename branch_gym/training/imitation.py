@@ -409,12 +409,7 @@ def fit_student(
         policy.set_training_mode(True)
         for part, observation in batches(rng.permutation(train)):
             _, log_prob, _ = policy.evaluate_actions(observation, actions[part])
-            batch_weights = weights[part]
-            loss = -(batch_weights * log_prob).sum() / batch_weights.sum()
-            optimizer.zero_grad()
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(policy.parameters(), model.max_grad_norm)
-            optimizer.step()
+            weighted_nll_step(model, optimizer, log_prob, weights[part])
         policy.set_training_mode(False)
         if n_held_out == 0:
             best_epoch = epoch
@@ -439,6 +434,24 @@ def fit_student(
         "train_accuracy": accuracy(train),
         "held_out_accuracy": accuracy(held_out),
     }
+
+
+def weighted_nll_step(model: Any, optimizer: Any, log_prob: Any, weights: Any) -> None:
+    """One optimiser step on the weighted cross-entropy of some labels (the fit's loss).
+
+    Args:
+        model: The SB3 model whose policy is fitted (its ``max_grad_norm`` clips the gradient).
+        optimizer: The torch optimiser of the policy's parameters.
+        log_prob: (B,) torch log-probabilities of the expert's actions.
+        weights: (B,) torch label weights (:func:`label_weights`).
+    """
+    import torch
+
+    loss = -(weights * log_prob).sum() / weights.sum()
+    optimizer.zero_grad()
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(model.policy.parameters(), model.max_grad_norm)
+    optimizer.step()
 
 
 def action_probabilities(

@@ -49,6 +49,7 @@ from branch_gym.training.imitation import (
     new_student,
     rotation_auc_of,
     value_bounds_s,
+    weighted_nll_step,
 )
 from branch_gym.training.train import new_model
 
@@ -104,6 +105,15 @@ def _sequence_batch(
     return observations, data.expert_actions[index], mask
 
 
+def _zero_state(policy: Any, n_sequences: int) -> tuple[Any, Any]:
+    """The actor LSTM's (hidden, cell) state at an episode's start, for ``n_sequences``."""
+    import torch
+
+    lstm = policy.lstm_actor
+    zeros = torch.zeros(lstm.num_layers, n_sequences, lstm.hidden_size)
+    return zeros, zeros
+
+
 def recurrent_probabilities(model: Any, data: RoundData, episodes: list[slice]) -> np.ndarray:
     """(N, n_actions) action probabilities of a recurrent policy, each episode from its start.
 
@@ -115,17 +125,14 @@ def recurrent_probabilities(model: Any, data: RoundData, episodes: list[slice]) 
     import torch
 
     policy = model.policy
-    hidden = policy.lstm_actor.hidden_size
-    layers = policy.lstm_actor.num_layers
     rows = []
     with torch.no_grad():
         for episode in episodes:
             observation, _ = policy.obs_to_tensor(
                 {key: value[episode] for key, value in data.observations.items()}
             )
-            zeros = torch.zeros(layers, 1, hidden)
             starts = torch.zeros(episode.stop - episode.start)
-            distribution, _ = policy.get_distribution(observation, (zeros, zeros), starts)
+            distribution, _ = policy.get_distribution(observation, _zero_state(policy, 1), starts)
             rows.append(distribution.distribution.probs.numpy())
     return np.concatenate(rows)
 
@@ -150,8 +157,6 @@ def fit_recurrent(
     weights = label_weights(data, config, value_bounds).astype(np.float32)
     mean_length = len(data.expert_actions) / len(episodes)
     per_batch = max(1, round(config.batch_size / mean_length))
-    hidden = policy.lstm_actor.hidden_size
-    layers = policy.lstm_actor.num_layers
     optimizer = torch.optim.AdamW(
         policy.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
     )
@@ -163,16 +168,11 @@ def fit_recurrent(
             observations, actions, mask = _sequence_batch(data, batch)
             index = np.concatenate([np.arange(s.start, s.stop) for s in batch])
             observation, _ = policy.obs_to_tensor(observations)
-            zeros = torch.zeros(layers, len(batch), hidden)
             starts = torch.zeros(len(actions))  # each sequence is one episode from its start
-            distribution, _ = policy.get_distribution(observation, (zeros, zeros), starts)
+            state = _zero_state(policy, len(batch))
+            distribution, _ = policy.get_distribution(observation, state, starts)
             log_prob = distribution.log_prob(torch.as_tensor(actions))[torch.as_tensor(mask)]
-            batch_weights = torch.as_tensor(weights[index])
-            loss = -(batch_weights * log_prob).sum() / batch_weights.sum()
-            optimizer.zero_grad()
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(policy.parameters(), model.max_grad_norm)
-            optimizer.step()
+            weighted_nll_step(model, optimizer, log_prob, torch.as_tensor(weights[index]))
     policy.set_training_mode(False)
 
 
