@@ -13,9 +13,11 @@ from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.imitation import (
     ROUNDS_LOG,
     ImitationConfig,
+    LabellingAgent,
     RoundData,
     fit_student,
     imitate,
+    is_recurrent_model,
     label_weights,
     new_student,
     rotation_auc,
@@ -77,6 +79,85 @@ def test_the_fit_learns_a_rule_the_labels_follow():
     inverted = RoundData(new_observations, np.where(new_angle > 0.2, 0, 2).astype(np.int64))
     assert rotation_auc(model, inverted) <= 0.05
     assert np.isnan(rotation_auc(model, RoundData(new_observations, np.zeros(n, np.int64))))
+
+
+class _CountingStudent:
+    """A student whose state counts its steps, restarting where the episode starts."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[object, object]] = []
+
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        self.calls.append((state, episode_start))
+        restart = state is None or bool(np.asarray(episode_start).any())
+        return np.array([3]), 1 if restart else state + 1
+
+
+class _HoldingExpert:
+    def predict(self, observation, state=None, episode_start=None, deterministic=True):
+        return np.array(0), None
+
+
+def test_the_labelling_agent_carries_the_students_state():
+    agent = LabellingAgent(_HoldingExpert(), _CountingStudent())
+    observation = {"vector": np.zeros(3, np.float32)}
+    state = None
+    for step in range(3):
+        action, state = agent.predict(observation, state=state, episode_start=step == 0)
+        assert action == 3 and state == step + 1
+    calls = agent.student.calls
+    assert [c[0] for c in calls] == [None, 1, 2]
+    assert [bool(c[1][0]) for c in calls] == [True, False, False]
+    assert agent.labels == [0, 0, 0] and agent.agreed == 0
+
+
+def test_a_recurrent_fit_holds_out_whole_episodes():
+    config = ImitationConfig(
+        train=replace(FAST, recurrent=True), epochs=2, batch_size=14, validation_fraction=0.25
+    )
+    model = new_student(config)
+    assert is_recurrent_model(model)
+    steps, episodes = 7, 10
+    n = steps * episodes
+    space = model.observation_space
+    observations = {key: np.zeros((n, *sub.shape), sub.dtype) for key, sub in space.items()}
+    observations["vector"][:, VectorField.SCAN_TIME] = np.tile(np.arange(steps) / 100.0, episodes)
+    labels = np.tile([0, 0, 2, 0, 0, 0, 0], episodes).astype(np.int64)
+    fit = fit_student(model, RoundData(observations, labels), config, np.random.default_rng(0))
+    assert fit["held_out_labels"] == 2 * steps  # round(0.25 * 10) episodes, not 0.25 of labels
+    assert fit["epochs_kept"] in (1, 2) and np.isfinite(fit["held_out_loss"])
+    feedforward = ImitationConfig(train=FAST, epochs=1, validation_fraction=0.25)
+    fit = fit_student(
+        new_student(feedforward), RoundData(observations, labels), feedforward,
+        np.random.default_rng(0),
+    )  # fmt: skip
+    assert fit["held_out_labels"] == round(0.25 * n)
+
+
+@pytest.mark.slow
+def test_a_recurrent_dagger_run_writes_a_policy_that_plays_with_its_state(tmp_path):
+    import gymnasium as gym
+
+    from agents.factory import make_agent
+
+    config = ImitationConfig(
+        train=replace(FAST, recurrent=True), rounds=2, episodes=2, epochs=1,
+        validation_fraction=0.0,
+    )  # fmt: skip
+    final = imitate(config, tmp_path, workers=1)
+    rows = [json.loads(line) for line in (tmp_path / ROUNDS_LOG).read_text().splitlines()]
+    assert [row["played_by"] for row in rows] == ["expert", "student"]
+    env = gym.make("BranchScanDiscrete-v1", tracker="oracle", render_tracking_frames=False)
+    agent = make_agent(f"ppo:{final}@100", env)
+    assert is_recurrent_model(agent.model)
+    observation, _ = env.reset(seed=3)
+    action, state = agent.predict(observation, episode_start=True)
+    assert env.action_space.contains(int(action))
+    hidden, cell = state  # the LSTM's (hidden, cell), passed back with the next observation
+    assert (
+        hidden.shape == cell.shape and hidden.shape[-1] == agent.model.policy.lstm_actor.hidden_size
+    )
+    env.close()
 
 
 @pytest.mark.slow

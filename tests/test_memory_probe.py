@@ -10,8 +10,14 @@ import pytest
 
 from branch_gym.env.layout import VectorField
 from branch_gym.training.config import PPOConfig, TrainConfig
-from branch_gym.training.imitation import CONFIG_FILE, ImitationConfig, RoundData, new_student
-from branch_gym.training.memory_probe import episode_slices, format_table, probe
+from branch_gym.training.imitation import (
+    CONFIG_FILE,
+    ImitationConfig,
+    RoundData,
+    episode_slices,
+    new_student,
+)
+from branch_gym.training.memory_probe import format_table, probe
 
 FAST = TrainConfig(
     env_id="BranchScanDiscrete-v2",

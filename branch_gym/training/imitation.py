@@ -23,7 +23,11 @@ are dear (400 s: above 0.2) and only on strong evidence when they are cheap (25 
 
 The student is a stable-baselines3 ``PPO`` of the run's architecture (``TrainConfig.ppo``), so
 ``ppo:OUT/model.zip`` evaluates it and ``train.py --init-model OUT/model.zip`` fine-tunes it with
-PPO. Episodes run in ``workers`` processes on the run's training trees
+PPO; with ``--recurrent`` an sb3-contrib ``RecurrentPPO`` (an LSTM after the same features), which
+plays with its state carried through the episode and is fitted on whole episodes (issue 17's
+recurrent variant; :mod:`branch_gym.training.memory_probe` measured what memory adds).
+
+Episodes run in ``workers`` processes on the run's training trees
 (:func:`branch_gym.training.seeds.train_seed_range`, after the first ``tree_offset`` of them);
 every round is saved (its labels ``round_K.npz``, the student after it ``model_round_K.zip``,
 a line of ``rounds.jsonl``), so an interrupted run resumes at the next round.
@@ -35,7 +39,8 @@ needs only the loop below.
 Usage (the shipped students' commands are in the README, "Learned rotation policies")::
 
     python -m branch_gym.training.imitation --out runs/NAME [--rounds 8] [--episodes 96] \\
-        [--reference-value 100] [--segmenter noisy:moderate] [--workers 2] [--resume]
+        [--reference-value 100] [--segmenter noisy:moderate] [--recurrent] [--workers 2] \\
+        [--resume]
 """
 
 from __future__ import annotations
@@ -49,6 +54,7 @@ import math
 import os
 import sys
 from dataclasses import asdict, dataclass, field, replace
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -60,7 +66,7 @@ from tqdm import tqdm
 import branch_gym  # noqa: F401  (registers the env ids in worker processes)
 from agents.ppo import load_model
 from agents.privileged import PrivilegedAgent
-from branch_gym.env.layout import PRICE_KEY
+from branch_gym.env.layout import PRICE_KEY, VECTOR_KEY, VectorField
 from branch_gym.evaluation.episodes import run_episode
 from branch_gym.sim.validation import require_int, require_non_negative, require_positive
 from branch_gym.training.config import PPOConfig, TrainConfig
@@ -118,6 +124,11 @@ class ImitationConfig:
             Our choice for the price-conditioned student: 100 s, the v0 reward's price.
         tree_offset: Skip this many of the run's training trees (so a DAgger run and a PPO run
             of the same seed can use different trees).
+
+    With ``train.recurrent`` the student is an sb3-contrib ``RecurrentPPO`` (the same features
+    followed by an LSTM, ``MultiInputLstmPolicy``): it plays with its LSTM state carried through
+    the episode and is fitted on whole episodes, the state run from each episode's first step
+    (:func:`fit_student`); ``validation_fraction`` then holds out whole episodes.
     """
 
     train: TrainConfig = field(default_factory=TrainConfig)
@@ -149,8 +160,6 @@ class ImitationConfig:
             raise ValueError(
                 f"imitation needs a discrete env (BranchScanDiscrete-*), got {self.train.env_id!r}"
             )
-        if self.train.recurrent:
-            raise ValueError("imitation trains a feed-forward PPO policy (recurrent=False)")
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -255,8 +264,12 @@ class LabellingAgent:
     ) -> tuple[int, Any]:
         expert_action = int(self.expert.predict(observation, episode_start=episode_start)[0])
         action = expert_action
-        if self.student is not None:
-            action = int(self.student.predict(observation, deterministic=deterministic)[0])
+        if self.student is not None:  # a recurrent student's LSTM state goes round in ``state``
+            starts = None if episode_start is None else np.asarray(episode_start, bool).reshape(-1)
+            student_action, state = self.student.predict(
+                observation, state=state, episode_start=starts, deterministic=deterministic
+            )
+            action = int(np.asarray(student_action).reshape(-1)[0])
         self.agreed += action == expert_action
         self.observations.append({key: np.array(value) for key, value in observation.items()})
         self.labels.append(expert_action)
@@ -359,57 +372,77 @@ def fit_student(
     """Fit the policy's action distribution to the expert's labels (weighted cross-entropy).
 
     Args:
-        model: The student (SB3 PPO); its policy is trained in place.
-        data: All labels so far.
+        model: The student (SB3 PPO or sb3-contrib RecurrentPPO); its policy is trained in
+            place.
+        data: All labels so far, whole episodes in play order.
         config: Epochs, batch size, learning rate, label weights.
         rng: Minibatch order.
         value_bounds_s: The env's branch value bounds (s), for price conditioning
             (:func:`label_weights`).
 
-    A random ``validation_fraction`` of the labels is held out; after each epoch the weighted
-    loss on it is measured, and the weights of the best epoch are kept (early stopping).
+    The units of the fit are single labels for a feed-forward policy and whole episodes for a
+    recurrent one (its LSTM state runs from each episode's first step; a minibatch holds as many
+    episodes as make about ``config.batch_size`` labels). A random ``validation_fraction`` of
+    the units is held out; after each epoch the weighted loss on it is measured, and the
+    weights of the best epoch are kept (early stopping).
 
     Returns:
         The epoch kept, the weighted losses and the accuracies of the deterministic action on
-        the fitted and the held-out labels.
+        the fitted and the held-out labels, and the number of held-out labels.
     """
     import torch
 
     policy = model.policy
+    recurrent = is_recurrent_model(model)
     actions = torch.as_tensor(data.expert_actions)
-    weights = torch.as_tensor(label_weights(data, config, value_bounds_s), dtype=torch.float32)
-    n_held_out = round(config.validation_fraction * len(actions))
+    label_weight = label_weights(data, config, value_bounds_s)
+    weights = torch.as_tensor(label_weight, dtype=torch.float32)
+    episodes = episode_slices(data) if recurrent else []
+    n_units = len(episodes) if recurrent else len(actions)
+    per_batch = config.batch_size
+    if recurrent:
+        per_batch = max(1, round(config.batch_size * n_units / len(actions)))
+    n_held_out = round(config.validation_fraction * n_units)
     if n_held_out:
-        order = rng.permutation(len(actions))
+        order = rng.permutation(n_units)
         held_out, train = order[:n_held_out], order[n_held_out:]
     else:  # every label is fitted, for all epochs
-        held_out, train = np.zeros(0, np.int64), np.arange(len(actions))
+        held_out, train = np.zeros(0, np.int64), np.arange(n_units)
     optimizer = torch.optim.AdamW(
         policy.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
     )
 
-    def batches(index: np.ndarray) -> Any:
-        for start in range(0, len(index), config.batch_size):
-            part = index[start : start + config.batch_size]
-            observation, _ = policy.obs_to_tensor(
-                {key: value[part] for key, value in data.observations.items()}
-            )
-            yield part, observation
+    def labels(units: np.ndarray) -> np.ndarray:
+        if not recurrent:
+            return units
+        ranges = [np.arange(episodes[u].start, episodes[u].stop) for u in units]
+        return np.concatenate([np.zeros(0, np.int64), *ranges])
 
-    def weighted_loss(index: np.ndarray) -> float:
-        total = 0.0
-        with torch.no_grad():
-            for part, observation in batches(index):
-                _, log_prob, _ = policy.evaluate_actions(observation, actions[part])
-                total += float(-(weights[part] * log_prob).sum())
-        return total / max(float(weights[index].sum()), 1e-12)
+    def log_probabilities(units: np.ndarray) -> Any:
+        if recurrent:
+            return sequence_log_probabilities(policy, data, [episodes[u] for u in units])
+        observation, _ = policy.obs_to_tensor(
+            {key: value[units] for key, value in data.observations.items()}
+        )
+        return policy.evaluate_actions(observation, actions[units])[1]
+
+    def probabilities(units: np.ndarray) -> np.ndarray:
+        if recurrent:
+            return recurrent_probabilities(model, data, [episodes[u] for u in units])
+        return action_probabilities(model, data, units, config.batch_size)
+
+    def weighted_loss(units: np.ndarray) -> float:
+        index = labels(units)
+        return weighted_nll(probabilities(units), data.expert_actions[index], label_weight[index])
 
     best_loss, best_state, best_epoch = math.inf, None, 0
     for epoch in range(1, config.epochs + 1):
         policy.set_training_mode(True)
-        for part, observation in batches(rng.permutation(train)):
-            _, log_prob, _ = policy.evaluate_actions(observation, actions[part])
-            weighted_nll_step(model, optimizer, log_prob, weights[part])
+        order = rng.permutation(train)
+        for start in range(0, len(order), per_batch):
+            part = order[start : start + per_batch]
+            log_prob = log_probabilities(part)
+            weighted_nll_step(model, optimizer, log_prob, weights[labels(part)])
         policy.set_training_mode(False)
         if n_held_out == 0:
             best_epoch = epoch
@@ -421,19 +454,32 @@ def fit_student(
     if best_state is not None:  # early stopping: the epoch with the lowest held-out loss
         policy.load_state_dict(best_state)
 
-    def accuracy(index: np.ndarray) -> float:
-        if len(index) == 0:
+    def accuracy(units: np.ndarray) -> float:
+        if len(units) == 0:
             return math.nan
-        predicted = action_probabilities(model, data, index, config.batch_size).argmax(axis=1)
-        return float(np.mean(predicted == data.expert_actions[index]))
+        predicted = probabilities(units).argmax(axis=1)
+        return float(np.mean(predicted == data.expert_actions[labels(units)]))
 
     return {
         "epochs_kept": best_epoch,
         "train_loss": weighted_loss(train),
         "held_out_loss": best_loss if n_held_out else math.nan,
+        "held_out_labels": len(labels(held_out)),
         "train_accuracy": accuracy(train),
         "held_out_accuracy": accuracy(held_out),
     }
+
+
+def weighted_nll(probabilities: np.ndarray, actions: np.ndarray, weights: np.ndarray) -> float:
+    """The fit's loss on some labels: weighted cross-entropy of the expert's actions.
+
+    Args:
+        probabilities: (N, n_actions) the student's action probabilities.
+        actions: (N,) the expert's actions.
+        weights: (N,) label weights (:func:`label_weights`).
+    """
+    chosen = np.clip(probabilities[np.arange(len(actions)), actions], 1e-12, 1.0)
+    return float(-(weights * np.log(chosen)).sum() / max(float(weights.sum()), 1e-12))
 
 
 def weighted_nll_step(model: Any, optimizer: Any, log_prob: Any, weights: Any) -> None:
@@ -498,8 +544,7 @@ def rotation_auc(model: Any, data: RoundData) -> float:
     rotates = data.expert_actions != 0
     if rotates.all() or not rotates.any():
         return math.nan
-    index = np.arange(len(rotates))
-    return rotation_auc_of(action_probabilities(model, data, index, _AUC_BATCH), rotates)
+    return rotation_auc_of(student_probabilities(model, data), rotates)
 
 
 def rotation_auc_of(probabilities: np.ndarray, rotates: np.ndarray) -> float:
@@ -518,6 +563,114 @@ def rotation_auc_of(probabilities: np.ndarray, rotates: np.ndarray) -> float:
     scores = 1.0 - probabilities[:, 0]
     u_statistic = mannwhitneyu(scores[rotates], scores[~rotates]).statistic
     return float(u_statistic / (rotates.sum() * (~rotates).sum()))
+
+
+# -- recurrent students (whole episodes) --------------------------------------------------------
+
+
+def is_recurrent_model(model: Any) -> bool:
+    """Whether a student is an sb3-contrib RecurrentPPO (an LSTM policy)."""
+    from sb3_contrib.common.recurrent.policies import RecurrentActorCriticPolicy
+
+    return isinstance(model.policy, RecurrentActorCriticPolicy)
+
+
+def episode_slices(data: RoundData) -> list[slice]:
+    """The episodes of a round's labels, in play order.
+
+    An episode starts where the observation's scan time (``VectorField.SCAN_TIME``) falls: it is
+    0 at every reset and grows within a scan.
+
+    Raises:
+        ValueError: no labels.
+    """
+    scan_time = data.observations[VECTOR_KEY][:, VectorField.SCAN_TIME]
+    if len(scan_time) == 0:
+        raise ValueError("the round holds no labels")
+    starts = np.flatnonzero(np.diff(scan_time) < 0) + 1
+    bounds = [0, *starts.tolist(), len(scan_time)]
+    return [slice(a, b) for a, b in pairwise(bounds)]
+
+
+def _sequence_batch(
+    data: RoundData, episodes: list[slice]
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """Episodes padded to one length, episode-major (sb3-contrib's sequence layout).
+
+    Returns:
+        ``(observations, actions, mask)``: each (B * L, ...) for B episodes of at most L steps;
+        padding repeats an episode's last step with mask 0.
+    """
+    length = max(s.stop - s.start for s in episodes)
+    index = np.concatenate(
+        [np.minimum(np.arange(s.start, s.start + length), s.stop - 1) for s in episodes]
+    )
+    mask = np.concatenate([np.arange(length) < s.stop - s.start for s in episodes])
+    observations = {key: value[index] for key, value in data.observations.items()}
+    return observations, data.expert_actions[index], mask
+
+
+def _zero_state(policy: Any, n_sequences: int) -> tuple[Any, Any]:
+    """The actor LSTM's (hidden, cell) state at an episode's start, for ``n_sequences``."""
+    import torch
+
+    lstm = policy.lstm_actor
+    zeros = torch.zeros(lstm.num_layers, n_sequences, lstm.hidden_size)
+    return zeros, zeros
+
+
+def recurrent_probabilities(model: Any, data: RoundData, episodes: list[slice]) -> np.ndarray:
+    """(N, n_actions) action probabilities of a recurrent policy, each episode from its start.
+
+    Args:
+        model: An sb3-contrib RecurrentPPO (discrete actions).
+        data: Labelled observations.
+        episodes: The episodes to score (rows of the result follow them in order).
+    """
+    import torch
+
+    policy = model.policy
+    rows = []
+    with torch.no_grad():
+        for episode in episodes:
+            observation, _ = policy.obs_to_tensor(
+                {key: value[episode] for key, value in data.observations.items()}
+            )
+            starts = torch.zeros(episode.stop - episode.start)
+            distribution, _ = policy.get_distribution(observation, _zero_state(policy, 1), starts)
+            rows.append(distribution.distribution.probs.numpy())
+    return np.concatenate(rows)
+
+
+def sequence_log_probabilities(policy: Any, data: RoundData, episodes: list[slice]) -> Any:
+    """Log-probabilities of the expert's actions under a recurrent policy, whole episodes.
+
+    Args:
+        policy: A RecurrentPPO policy (in training mode for a fit).
+        data: Labelled observations.
+        episodes: Episodes of ``data``, each run from its first step with a zero LSTM state.
+
+    Returns:
+        A torch tensor of the log-probabilities of those episodes' labels, in order.
+    """
+    import torch
+
+    observations, actions, mask = _sequence_batch(data, episodes)
+    observation, _ = policy.obs_to_tensor(observations)
+    starts = torch.zeros(len(actions))  # each sequence is one episode from its start
+    state = _zero_state(policy, len(episodes))
+    distribution, _ = policy.get_distribution(observation, state, starts)
+    return distribution.log_prob(torch.as_tensor(actions))[torch.as_tensor(mask)]
+
+
+def student_probabilities(model: Any, data: RoundData) -> np.ndarray:
+    """(N, n_actions) a student's action probabilities for every label, in order.
+
+    A recurrent student runs each episode from its start (:func:`episode_slices`).
+    """
+    if is_recurrent_model(model):
+        return recurrent_probabilities(model, data, episode_slices(data))
+    return action_probabilities(model, data, np.arange(len(data.expert_actions)), _AUC_BATCH)
 
 
 # -- the run -----------------------------------------------------------------------------------
@@ -667,6 +820,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="render every tracking frame (default: only the modeling frames, oracle tracker)",
     )
     parser.add_argument("--cnn-output-dim", type=int, default=64)
+    parser.add_argument(
+        "--recurrent",
+        action="store_true",
+        help="an LSTM student (sb3-contrib RecurrentPPO), fitted on whole episodes",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--rounds", type=int, default=ImitationConfig.rounds)
     parser.add_argument("--episodes", type=int, default=ImitationConfig.episodes)
@@ -708,6 +866,7 @@ def main(argv: list[str] | None = None) -> int:
                 segmenter=args.segmenter,
                 seed=args.seed,
                 render_tracking_frames=args.all_tracking_frames or args.tracker != "oracle",
+                recurrent=args.recurrent,
                 ppo=PPOConfig(cnn_output_dim=args.cnn_output_dim),
             ),
             rounds=args.rounds,

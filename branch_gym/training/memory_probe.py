@@ -31,48 +31,26 @@ import json
 import logging
 import sys
 from dataclasses import replace
-from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 
-from branch_gym.env.layout import VECTOR_KEY, VectorField
 from branch_gym.training.imitation import (
     CONFIG_FILE,
     ImitationConfig,
     RoundData,
-    action_probabilities,
     fit_student,
     label_weights,
     new_student,
     rotation_auc_of,
+    student_probabilities,
     value_bounds_s,
-    weighted_nll_step,
+    weighted_nll,
 )
-from branch_gym.training.train import new_model
 
 logger = logging.getLogger(__name__)
-
-_EVAL_BATCH = 1024  # observations per forward pass when scoring (memory, not results)
-
-
-def episode_slices(data: RoundData) -> list[slice]:
-    """The episodes of a round's labels, in play order.
-
-    An episode starts where the observation's scan time (``VectorField.SCAN_TIME``) falls: it is
-    0 at every reset and grows within a scan.
-
-    Raises:
-        ValueError: no labels.
-    """
-    scan_time = data.observations[VECTOR_KEY][:, VectorField.SCAN_TIME]
-    if len(scan_time) == 0:
-        raise ValueError("the round holds no labels")
-    starts = np.flatnonzero(np.diff(scan_time) < 0) + 1
-    bounds = [0, *starts.tolist(), len(scan_time)]
-    return [slice(a, b) for a, b in pairwise(bounds)]
 
 
 def load_rounds(run: Path, rounds: list[int]) -> RoundData:
@@ -87,95 +65,6 @@ def load_rounds(run: Path, rounds: list[int]) -> RoundData:
     return RoundData.concatenate([RoundData.load(run / f"round_{k}.npz") for k in rounds])
 
 
-def _sequence_batch(
-    data: RoundData, episodes: list[slice]
-) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
-    """Episodes padded to one length, episode-major (sb3-contrib's sequence layout).
-
-    Returns:
-        ``(observations, actions, mask)``: each (B * L, ...) for B episodes of at most L steps;
-        padding repeats an episode's last step with mask 0.
-    """
-    length = max(s.stop - s.start for s in episodes)
-    index = np.concatenate(
-        [np.minimum(np.arange(s.start, s.start + length), s.stop - 1) for s in episodes]
-    )
-    mask = np.concatenate([np.arange(length) < s.stop - s.start for s in episodes])
-    observations = {key: value[index] for key, value in data.observations.items()}
-    return observations, data.expert_actions[index], mask
-
-
-def _zero_state(policy: Any, n_sequences: int) -> tuple[Any, Any]:
-    """The actor LSTM's (hidden, cell) state at an episode's start, for ``n_sequences``."""
-    import torch
-
-    lstm = policy.lstm_actor
-    zeros = torch.zeros(lstm.num_layers, n_sequences, lstm.hidden_size)
-    return zeros, zeros
-
-
-def recurrent_probabilities(model: Any, data: RoundData, episodes: list[slice]) -> np.ndarray:
-    """(N, n_actions) action probabilities of a recurrent policy, each episode from its start.
-
-    Args:
-        model: An sb3-contrib RecurrentPPO (discrete actions).
-        data: Labelled observations.
-        episodes: The episodes to score (rows of the result follow them in order).
-    """
-    import torch
-
-    policy = model.policy
-    rows = []
-    with torch.no_grad():
-        for episode in episodes:
-            observation, _ = policy.obs_to_tensor(
-                {key: value[episode] for key, value in data.observations.items()}
-            )
-            starts = torch.zeros(episode.stop - episode.start)
-            distribution, _ = policy.get_distribution(observation, _zero_state(policy, 1), starts)
-            rows.append(distribution.distribution.probs.numpy())
-    return np.concatenate(rows)
-
-
-def fit_recurrent(
-    model: Any,
-    data: RoundData,
-    config: ImitationConfig,
-    rng: np.random.Generator,
-    value_bounds: tuple[float, float] | None = None,
-) -> None:
-    """Fit a RecurrentPPO policy's actions to the expert's labels, whole episodes at a time.
-
-    The objective is :func:`branch_gym.training.imitation.fit_student`'s (weighted
-    cross-entropy, AdamW, gradient clipping, every label every epoch); a minibatch holds as many
-    whole episodes as make about ``config.batch_size`` labels.
-    """
-    import torch
-
-    policy = model.policy
-    episodes = episode_slices(data)
-    weights = label_weights(data, config, value_bounds).astype(np.float32)
-    mean_length = len(data.expert_actions) / len(episodes)
-    per_batch = max(1, round(config.batch_size / mean_length))
-    optimizer = torch.optim.AdamW(
-        policy.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
-    )
-    policy.set_training_mode(True)
-    for _ in range(config.epochs):
-        order = rng.permutation(len(episodes))
-        for start in range(0, len(order), per_batch):
-            batch = [episodes[i] for i in order[start : start + per_batch]]
-            observations, actions, mask = _sequence_batch(data, batch)
-            index = np.concatenate([np.arange(s.start, s.stop) for s in batch])
-            observation, _ = policy.obs_to_tensor(observations)
-            starts = torch.zeros(len(actions))  # each sequence is one episode from its start
-            state = _zero_state(policy, len(batch))
-            distribution, _ = policy.get_distribution(observation, state, starts)
-            log_prob = distribution.log_prob(torch.as_tensor(actions))[torch.as_tensor(mask)]
-            weighted_nll_step(model, optimizer, log_prob, torch.as_tensor(weights[index]))
-    policy.set_training_mode(False)
-
-
 def scores(
     probabilities: np.ndarray,
     data: RoundData,
@@ -184,11 +73,11 @@ def scores(
 ) -> dict[str, float]:
     """Rotation AUC, weighted cross-entropy and accuracy of action probabilities on labels."""
     actions = data.expert_actions
-    weights = label_weights(data, config, value_bounds)
-    chosen = np.clip(probabilities[np.arange(len(actions)), actions], 1e-12, 1.0)
     return {
         "rotation_auc": rotation_auc_of(probabilities, actions != 0),
-        "weighted_nll": float(-(weights * np.log(chosen)).sum() / weights.sum()),
+        "weighted_nll": weighted_nll(
+            probabilities, actions, label_weights(data, config, value_bounds)
+        ),
         "accuracy": float(np.mean(probabilities.argmax(axis=1) == actions)),
     }
 
@@ -237,12 +126,9 @@ def probe(
         logger.info("fitting the feed-forward student on %d labels", len(train.expert_actions))
         feedforward = new_student(config, env)
         fit_student(feedforward, train, config, np.random.default_rng([seed, max(train_rounds)]))
-        recurrent_train = replace(
-            config.train, recurrent=True, ppo=replace(config.train.ppo, first_action_logit_init=0)
-        )
         logger.info("fitting the recurrent policy on %d labels", len(train.expert_actions))
-        recurrent = new_model(recurrent_train, env)
-        fit_recurrent(recurrent, train, config, np.random.default_rng(seed), bounds)
+        recurrent = new_student(replace(config, train=replace(config.train, recurrent=True)), env)
+        fit_student(recurrent, train, config, np.random.default_rng(seed), bounds)
     finally:
         env.close()
     result: dict[str, Any] = {
@@ -253,14 +139,10 @@ def probe(
         "test_labels": len(test.expert_actions),
         "epochs": config.epochs,
     }
-    for name, probabilities in (
-        ("feedforward", lambda d: action_probabilities(
-            feedforward, d, np.arange(len(d.expert_actions)), _EVAL_BATCH)),
-        ("recurrent", lambda d: recurrent_probabilities(recurrent, d, episode_slices(d))),
-    ):  # fmt: skip
+    for name, model in (("feedforward", feedforward), ("recurrent", recurrent)):
         result[name] = {
-            "test": scores(probabilities(test), test, config, bounds),
-            "train": scores(probabilities(train), train, config, bounds),
+            "test": scores(student_probabilities(model, test), test, config, bounds),
+            "train": scores(student_probabilities(model, train), train, config, bounds),
         }
     return result
 
