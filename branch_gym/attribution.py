@@ -141,8 +141,11 @@ class BranchVisibility:
             & (pixels[:, 1] > -reach)
             & (pixels[:, 1] < intrinsics.height + reach)
         )
-        for (u, v), r in zip(pixels[near], radius_px[near], strict=True):
-            cv2.circle(silhouette, (round(u), round(v)), round(r), 1, thickness=-1)
+        # np.rint rounds half to even as round() does; integer lists keep the loop to cv2 calls.
+        centers = np.rint(pixels[near]).astype(np.int64).tolist()
+        radii = np.rint(radius_px[near]).astype(np.int64).tolist()
+        for (u, v), r in zip(centers, radii, strict=True):
+            cv2.circle(silhouette, (u, v), r, 1, thickness=-1)
         return silhouette.astype(bool)
 
 

@@ -310,3 +310,15 @@ def test_urdf_is_cached_outside_the_repository() -> None:
     assert text.count('type="revolute"') == 6 and 'name="camera_optical"' in text
     other = ur5e.write_ur5e_urdf(CameraMountConfig(forward_offset_m=0.05))
     assert other != path
+
+
+@pytest.mark.parametrize("angle_rad", [0.0, 1e-12, 1e-4, 0.3, 2.0, math.pi - 1e-3])
+def test_rotation_exp_matches_scipy(angle_rad):
+    from scipy.spatial.transform import Rotation
+
+    from branch_gym.sim.robot.kinematics import rotation_exp
+
+    axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    R = rotation_exp(axis * angle_rad)
+    np.testing.assert_allclose(R, Rotation.from_rotvec(axis * angle_rad).as_matrix(), atol=1e-15)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-15)

@@ -171,7 +171,7 @@ class UR5e:
 
     def _apply_q(self, q: np.ndarray, J_world: np.ndarray) -> None:
         """Set the joints and cache the state at ``q`` (pybullet's camera pose, ``J_world``)."""
-        self._bullet_reset_joints(self.body_id, self._joint_indices, [[float(v)] for v in q])
+        self._bullet_reset_joints(self.body_id, self._joint_indices, q.reshape(-1, 1).tolist())
         link = self._bullet_link_state(
             self.body_id, self._camera_link, computeForwardKinematics=True
         )
@@ -410,7 +410,8 @@ class UR5e:
 
 def _pose_from_pybullet(position: Sequence[float], quaternion: Sequence[float]) -> np.ndarray:
     """(4, 4) pose from a pybullet position and (x, y, z, w) quaternion."""
-    T = np.eye(4)
-    T[:3, :3] = np.asarray(pybullet.getMatrixFromQuaternion(quaternion)).reshape(3, 3)
-    T[:3, 3] = position
-    return T
+    m = pybullet.getMatrixFromQuaternion(quaternion)  # row-major 3x3
+    x, y, z = position
+    return np.array(
+        ((m[0], m[1], m[2], x), (m[3], m[4], m[5], y), (m[6], m[7], m[8], z), (0.0, 0.0, 0.0, 1.0))
+    )

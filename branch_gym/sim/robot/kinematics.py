@@ -122,23 +122,29 @@ def rotation_log(R: np.ndarray) -> np.ndarray:
 def rotation_exp(rotation_vector: np.ndarray) -> np.ndarray:
     """Rotation matrix of an axis-angle vector (the SO(3) exponential, Rodrigues' formula).
 
+    ``I + sin(a)/a K + (1 - cos(a))/a^2 K^2`` with ``K = [v]x`` and ``K^2 = v v^T - a^2 I``,
+    written out on Python floats (called at every robot step: ~3x faster than array algebra).
+
     Args:
         rotation_vector: (3,) axis x angle (rad).
 
     Returns:
         (3, 3) rotation matrix.
     """
-    angle = float(np.linalg.norm(rotation_vector))
-    K = np.array(
+    x, y, z = (float(v) for v in rotation_vector)
+    angle_sq = x * x + y * y + z * z
+    angle = math.sqrt(angle_sq)
+    if angle < 1e-9:
+        return np.array([[1.0, -z, y], [z, 1.0, -x], [-y, x, 1.0]])
+    a = math.sin(angle) / angle
+    b = (1.0 - math.cos(angle)) / angle_sq
+    return np.array(
         [
-            [0.0, -rotation_vector[2], rotation_vector[1]],
-            [rotation_vector[2], 0.0, -rotation_vector[0]],
-            [-rotation_vector[1], rotation_vector[0], 0.0],
+            [1.0 + b * (x * x - angle_sq), b * x * y - a * z, b * x * z + a * y],
+            [b * x * y + a * z, 1.0 + b * (y * y - angle_sq), b * y * z - a * x],
+            [b * x * z - a * y, b * y * z + a * x, 1.0 + b * (z * z - angle_sq)],
         ]
     )
-    if angle < 1e-9:
-        return np.eye(3) + K
-    return np.eye(3) + math.sin(angle) / angle * K + (1.0 - math.cos(angle)) / angle**2 * K @ K
 
 
 def pose_error(T_world_target: np.ndarray, T_world_current: np.ndarray) -> np.ndarray:

@@ -192,9 +192,11 @@ class CameraMotion:
             J_inv = np.linalg.inv(J_world)
         except np.linalg.LinAlgError:
             return None
-        if float(np.sum(J_inv * J_inv)) * self.config.damping_sigma_band**2 > 1.0:
+        entries = J_inv.ravel()
+        if float(entries @ entries) * self.config.damping_sigma_band**2 > 1.0:
             return None
-        twist_world = np.concatenate([R_world_camera @ twist[:3], R_world_camera @ twist[3:]])
+        # [R v, R w]: both halves of the twist rotated by one (3, 3) @ (3, 2) product.
+        twist_world = (R_world_camera @ twist.reshape(2, 3).T).T.ravel()
         return J_inv @ twist_world
 
     def _step(self, twist: np.ndarray, step_s: float) -> MotionStatus:
@@ -225,12 +227,15 @@ class CameraMotion:
                 detail=f"manipulability {worst:.4g} < {config.manipulability_threshold}",
             )
         speed_ratio = np.abs(q_rate) / config.max_joint_speed_radps
-        beyond = (np.abs(q_next) > self._limit_rad) & (np.abs(q_next) > np.abs(q))
-        if np.any(speed_ratio > 1.0):
+        abs_next = np.abs(q_next)
+        beyond = None  # the joints past the limit and moving away from zero (rarely any)
+        if abs_next.max() > self._limit_rad:
+            beyond = (abs_next > self._limit_rad) & (abs_next > np.abs(q))
+        if speed_ratio.max() > 1.0:
             joint = int(np.argmax(speed_ratio))
             reason = "joint_speed"
             detail = f"{JOINT_NAMES[joint]} at {math.degrees(q_rate[joint]):.1f} deg/s"
-        elif np.any(beyond):
+        elif beyond is not None and beyond.any():
             joint = int(np.argmax(beyond))
             reason = "joint_limit"
             detail = f"{JOINT_NAMES[joint]} would reach {math.degrees(q_next[joint]):.1f} deg"
