@@ -19,9 +19,16 @@ the same core:
 * ``env_step_fast_ms``: the same for the training mode (oracle, pose-only tracking frames);
   ``env_step_floor_fast_ms`` = one ``render_frame_ms`` + the median modeler iteration of those
   very steps (the oracle's); ``env_step_over_floor_fast`` their ratio (target <= 1.3).
+* ``env_step_over_floor_in_step`` and ``env_step_over_floor_in_step_fast``: the same steps over
+  a floor timed inside them (``timings_ms``: each step's renders + its modeler iterations,
+  ``env_step_floor_in_step_ms`` and ``..._fast_ms`` its medians). The ratios above divide by a
+  render figure timed a minute apart from the steps, and a machine's speed can drift by ~20 %
+  over minutes (on one of ours the separate-floor LK ratio of the same code read 1.59 and 1.35 in
+  two runs ~10 minutes apart): the in-step floor shares the steps' moment.
 * ``env_steps_per_s_mix``: the training mode with the fixed action mix of
-  :mod:`branch_gym.training.action_mix` (one rotation every 10 steps) on ``MIX_SEEDS``, the
-  single-core rate that ``train_steps_per_s_fast`` (bench_train, 2 cores) is compared with.
+  :mod:`branch_gym.training.action_mix` (one rotation every 10 steps) on ``MIX_SEEDS``
+  (``train_over_env_fast_mix_seeds``; ``train_over_env_fast`` compares the training rate with
+  the single-core rate of the training run's own steps, bench_train).
 """
 
 from __future__ import annotations
@@ -51,7 +58,7 @@ FLOOR_RECON_SEEDS = (0, 1)  # two recorded scans for the in-run iteration figure
 
 
 @contextmanager
-def _one_core():
+def one_core():
     """Pin this process to one CPU and OpenCV to one thread; restore both afterwards."""
     threads = cv2.getNumThreads()
     affinity = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
@@ -72,8 +79,9 @@ def _episodes(
     """Whole episodes of ``seeds``: steps per second and per-step medians (ms).
 
     Returns:
-        ``steps_per_s``, ``overhead_ms`` (scoring + observation), ``step_ms`` (env step) and
-        ``iteration_ms`` (the modeler's iterations of a step).
+        ``steps_per_s``, ``overhead_ms`` (scoring + observation), ``step_ms`` (env step),
+        ``iteration_ms`` (the modeler's iterations of a step) and ``floor_ms`` (the renders and
+        iterations of a step, timed within it; steps without an iteration left out).
     """
     env = gymnasium.make(branch_gym.ENV_ID, tracker=tracker, info_timings=True, **kwargs)
     if mix:
@@ -82,6 +90,7 @@ def _episodes(
     overhead_ms: list[float] = []
     step_ms: list[float] = []
     iteration_ms: list[float] = []
+    floor_ms: list[float] = []  # per step: its renders + its modeler iterations
 
     def episode(seed: int) -> int:
         obs, _ = env.reset(seed=seed)
@@ -93,11 +102,12 @@ def _episodes(
             overhead_ms.append(timings["metrics_ms"] + timings["observation_ms"])
             step_ms.append(timings["env_step_ms"])
             iteration_ms.append(timings.get("modeler_total_ms", np.nan))
+            floor_ms.append(timings["render_ms"] + iteration_ms[-1])
             steps, done = steps + 1, terminated or truncated
         return steps
 
     episode(WARMUP_SEED)
-    for times in (overhead_ms, step_ms, iteration_ms):
+    for times in (overhead_ms, step_ms, iteration_ms, floor_ms):
         times.clear()
     start = time.perf_counter()
     steps = sum(episode(seed) for seed in seeds)
@@ -108,6 +118,7 @@ def _episodes(
         "overhead_ms": float(np.median(overhead_ms)),
         "step_ms": float(np.median(step_ms)),
         "iteration_ms": float(np.nanmedian(iteration_ms)),
+        "floor_ms": float(np.nanmedian(floor_ms)),
     }
 
 
@@ -125,7 +136,7 @@ def _floor_figures() -> tuple[float, float]:
 
 
 def run() -> dict[str, float]:
-    with _one_core():
+    with one_core():
         render_ms, iteration_ms = _floor_figures()
         lk = _episodes("lk")
         oracle = _episodes("oracle")
@@ -148,4 +159,8 @@ def run() -> dict[str, float]:
         "env_step_fast_ms": fast["step_ms"],
         "env_step_floor_fast_ms": floor_fast_ms,
         "env_step_over_floor_fast": fast["step_ms"] / floor_fast_ms,
+        "env_step_floor_in_step_ms": lk["floor_ms"],
+        "env_step_over_floor_in_step": lk["step_ms"] / lk["floor_ms"],
+        "env_step_floor_in_step_fast_ms": fast["floor_ms"],
+        "env_step_over_floor_in_step_fast": fast["step_ms"] / fast["floor_ms"],
     }

@@ -19,8 +19,19 @@ the policy sends), the default rollout length (``PPOConfig.n_steps``, 256 per en
 ``FAST_ROLLOUTS`` rollouts and updates, and the rollouts collected in the env processes
 (``TrainConfig.worker_rollouts``); the learner's torch threads follow ``train.py``
 (:class:`TorchThreadsCallback`: one while the workers step, ``UPDATE_TORCH_THREADS`` in the
-update). Compare it with twice ``env_steps_per_s_mix`` (bench_env, one core, the same mix):
-``train_over_env_fast`` (bench/run.py, both figures of one run) is their ratio (target >= 0.8).
+update). ``env_steps_per_s_train_trees`` is the single-core rate of the very steps that run
+plays: each env's trees (``TreeSeedWrapper``: run seed, rank, episode), the same mix and the same
+step count, replayed one env after the other in this process pinned to one core, once before the
+training figures and once after (total steps over total time: the machine's speed drifts by up to
+~20 % over minutes). ``train_over_env_fast`` (bench/run.py, figures of one run) is the training
+rate over twice it (target >= 0.8): the same work on both sides, so what the ratio loses is what
+training adds (the update, the wait for the slower worker, the policy's forward passes, pipes).
+``train_over_env_fast_mix_seeds`` compares with twice ``env_steps_per_s_mix`` instead (bench_env:
+the mix on 8 bench trees, not the training trees, measured minutes apart).
+``env_steps_per_s_side_by_side`` runs the two replays at once, one process per core (the sum of
+their own rates): ``env_parallel_efficiency`` is it over twice the single-core rate (the machine's
+ceiling for the ratio: two processes slow each other by ~15 % on some machines), and
+``train_over_side_by_side`` the training rate over it (what training itself loses).
 ``train_steps_per_s_fast_lockstep`` is the same run with SB3's lockstep collection (a step that
 rotates costs ~8x one that does not, and every vector step waits for the slower env), and
 ``train_steps_per_s_fast_4envs`` the lockstep with 4 env processes on the same cores (more envs
@@ -29,12 +40,19 @@ than cores fill the core that would idle).
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
 
+import numpy as np
+
+from bench.bench_env import one_core
 from branch_gym.training.action_mix import FixedActionMix
 from branch_gym.training.callbacks import TorchThreadsCallback
 from branch_gym.training.config import PPOConfig, TrainConfig
-from branch_gym.training.envs import make_train_env
+from branch_gym.training.envs import make_env, make_train_env
 from branch_gym.training.train import UPDATE_TORCH_THREADS, new_model
 
 N_ENVS = 2
@@ -53,6 +71,80 @@ FAST_STEPS = FAST_N_STEPS * N_ENVS  # steps of one rollout of the fast figures
 FAST_ROLLOUTS = 4
 
 
+def _fast_config(n_envs: int = N_ENVS, worker_rollouts: bool = True) -> TrainConfig:
+    """The run of the fast figures: ``FAST_ROLLOUTS`` rollouts of ``FAST_STEPS`` steps."""
+    ppo = PPOConfig(n_steps=FAST_STEPS // n_envs)
+    return TrainConfig(
+        timesteps=ppo.n_steps * n_envs * FAST_ROLLOUTS, n_envs=n_envs, seed=SEED,
+        tracker="oracle", eval_every=0, ppo=ppo, render_tracking_frames=False, normalize=False,
+        worker_rollouts=worker_rollouts,
+    )  # fmt: skip
+
+
+def _replay_s(rank: int, core: int | None = None) -> float:
+    """Seconds env ``rank`` of the fast run takes to play its steps alone (resets included).
+
+    The env (:func:`branch_gym.training.envs.make_env`: its trees, the fixed mix) plays
+    ``n_steps * FAST_ROLLOUTS`` steps from its first reset, resetting at episode ends as a
+    training env does; the mix ignores the action sent. Its creation is not timed (as in the
+    training figure).
+
+    Args:
+        rank: The env's index in the run.
+        core: Pin this process to this CPU (a side-by-side replay's own process), or None.
+    """
+    if core is not None and hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {core})
+    config = replace(_fast_config(), worker_rollouts=False)
+    env = make_env(config, rank, FixedActionMix)
+    action = np.zeros(env.action_space.shape, env.action_space.dtype)
+    start = time.perf_counter()
+    env.reset()
+    for _ in range(config.ppo.n_steps * FAST_ROLLOUTS):
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset()
+    elapsed_s = time.perf_counter() - start
+    env.close()
+    return elapsed_s
+
+
+def _steps_per_env() -> int:
+    return _fast_config().ppo.n_steps * FAST_ROLLOUTS
+
+
+def env_steps_per_s_train_trees() -> float:
+    """Single-core env steps per second of the steps :func:`train_steps_per_s_fast` plays.
+
+    The run's envs replayed one after the other in this process, pinned to one core.
+    """
+    import torch
+
+    threads = torch.get_num_threads()
+    try:
+        with one_core():
+            elapsed_s = sum(_replay_s(rank) for rank in range(N_ENVS))
+    finally:
+        torch.set_num_threads(threads)  # make_env sets the worker's thread count
+    return N_ENVS * _steps_per_env() / elapsed_s
+
+
+def env_steps_per_s_side_by_side() -> float:
+    """The same replays run at once, one process per core: the sum of their own rates.
+
+    Two such processes slow each other on some machines (shared caches and memory bandwidth:
+    ~15 % each on one of ours, none on another): the ceiling that machine puts on
+    ``train_over_env_fast`` whatever the training does. NaN with fewer than 2 cores.
+    """
+    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else []
+    if len(cores) < N_ENVS:
+        return float("nan")
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(N_ENVS, mp_context=context) as pool:
+        seconds = list(pool.map(_replay_s, range(N_ENVS), cores[:N_ENVS]))
+    return sum(_steps_per_env() / s for s in seconds)
+
+
 def train_steps_per_s_fast(n_envs: int = N_ENVS, worker_rollouts: bool = True) -> float:
     """Env steps per second of ``PPO.learn`` (training mode, fixed action mix, ``FAST_ROLLOUTS``).
 
@@ -64,12 +156,8 @@ def train_steps_per_s_fast(n_envs: int = N_ENVS, worker_rollouts: bool = True) -
     import torch
 
     threads = torch.get_num_threads()
-    ppo = PPOConfig(n_steps=FAST_STEPS // n_envs)
-    steps = ppo.n_steps * n_envs * FAST_ROLLOUTS
-    config = TrainConfig(
-        timesteps=steps, n_envs=n_envs, seed=SEED, tracker="oracle", eval_every=0, ppo=ppo,
-        render_tracking_frames=False, normalize=False, worker_rollouts=worker_rollouts,
-    )  # fmt: skip
+    config = _fast_config(n_envs, worker_rollouts)
+    steps = config.timesteps
     venv = make_train_env(config, wrapper=FixedActionMix)
     try:
         model = new_model(config, venv)
@@ -109,9 +197,16 @@ def _train_steps_per_s(tracker: str, n_steps: int = BENCH_N_STEPS, **recipe: obj
 
 
 def run() -> dict[str, float]:
+    replay_before = env_steps_per_s_train_trees()
+    fast = train_steps_per_s_fast()
+    lockstep = train_steps_per_s_fast(worker_rollouts=False)
+    replay_after = env_steps_per_s_train_trees()
     return {
-        "train_steps_per_s_fast": train_steps_per_s_fast(),
-        "train_steps_per_s_fast_lockstep": train_steps_per_s_fast(worker_rollouts=False),
+        # Total steps over total time of the two replays (the same step count each).
+        "env_steps_per_s_train_trees": 2.0 / (1.0 / replay_before + 1.0 / replay_after),
+        "env_steps_per_s_side_by_side": env_steps_per_s_side_by_side(),
+        "train_steps_per_s_fast": fast,
+        "train_steps_per_s_fast_lockstep": lockstep,
         "train_steps_per_s_fast_4envs": train_steps_per_s_fast(n_envs=4, worker_rollouts=False),
         "train_steps_per_s": _train_steps_per_s("lk"),
         "train_steps_per_s_oracle": _train_steps_per_s("oracle"),

@@ -10,6 +10,7 @@ import argparse
 import importlib
 import json
 import logging
+import math
 import os
 import platform
 from pathlib import Path
@@ -27,25 +28,46 @@ BENCHMARKS = [
     "bench.bench_ray",
 ]
 DEFAULT_OUT = Path(__file__).with_name("results.json")
-# Issue 14: PPO on 2 cores against twice the one-core env rate of the same action mix; a ratio
-# only from figures of the same run (machines differ by 2x).
-LOCKSTEP_KEY = "train_steps_per_s_fast_lockstep"
-TRAIN_RATIO_KEYS = ("train_steps_per_s_fast", "env_steps_per_s_mix")
+# Issue 14: PPO on 2 cores against twice the one-core env rate of the same steps (the training
+# run's trees and action mix, bench_train); a ratio only from figures of the same run (machines
+# differ by 2x).
+TRAIN_KEYS = {
+    "train_over_env_fast": "train_steps_per_s_fast",
+    "train_over_env_fast_lockstep": "train_steps_per_s_fast_lockstep",
+}
+SAME_STEPS_KEY = "env_steps_per_s_train_trees"
+# The same replays side by side (one process per core): what the machine allows 2 processes.
+SIDE_BY_SIDE_KEY = "env_steps_per_s_side_by_side"
+# The earlier denominator: the mix on bench_env's trees (not the training run's).
+MIX_SEEDS_RATIO = ("train_over_env_fast_mix_seeds", "train_steps_per_s_fast", "env_steps_per_s_mix")
 TRAIN_CORES = 2
 
 
 def derived_figures(measured: dict[str, float]) -> dict[str, float]:
     """Ratios of figures measured in this run: ``train_over_env_fast`` (target >= 0.8).
 
-    Also ``train_over_env_fast_lockstep``: the same ratio for SB3's lockstep collection.
+    Each training rate over twice the single-core rate of the same steps
+    (``env_steps_per_s_train_trees``); ``env_parallel_efficiency``: the side-by-side replays'
+    rate over that same twice (the machine's ceiling for the ratio); ``train_over_side_by_side``:
+    the worker-rollout rate over the side-by-side rate (what training itself loses); and
+    ``train_over_env_fast_mix_seeds``: the worker-rollout rate over twice ``env_steps_per_s_mix``
+    (bench_env's trees). Figures not measured in this run give no ratio.
     """
-    train, env = (measured.get(key) for key in TRAIN_RATIO_KEYS)
-    if train is None or env is None or env <= 0:
-        return {}
-    ratios = {"train_over_env_fast": train / (TRAIN_CORES * env)}
-    lockstep = measured.get(LOCKSTEP_KEY)
-    if lockstep is not None:
-        ratios["train_over_env_fast_lockstep"] = lockstep / (TRAIN_CORES * env)
+    ratios = {}
+    env = measured.get(SAME_STEPS_KEY)
+    for ratio, key in TRAIN_KEYS.items():
+        if env and measured.get(key) is not None:
+            ratios[ratio] = measured[key] / (TRAIN_CORES * env)
+    side_by_side = measured.get(SIDE_BY_SIDE_KEY)
+    if env and side_by_side is not None and math.isfinite(side_by_side):
+        ratios["env_parallel_efficiency"] = side_by_side / (TRAIN_CORES * env)
+        if measured.get(TRAIN_KEYS["train_over_env_fast"]) is not None:
+            ratios["train_over_side_by_side"] = (
+                measured[TRAIN_KEYS["train_over_env_fast"]] / side_by_side
+            )
+    ratio, train_key, mix_key = MIX_SEEDS_RATIO
+    if measured.get(train_key) is not None and measured.get(mix_key):
+        ratios[ratio] = measured[train_key] / (TRAIN_CORES * measured[mix_key])
     return ratios
 
 

@@ -26,6 +26,7 @@ tracker name               point tracker (:mod:`recon.tracking`)
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 
 import numpy as np
@@ -141,6 +142,9 @@ class Sensor:
         # How well the views show each ground-truth secondary (simulation only, for scoring).
         self.visibility = BranchVisibility(self.intrinsics)
         self._rng = np.random.default_rng(0)
+        # Wall time (ms) spent in the world's renderer since the sensor was built (a clock the
+        # env reads around a step: ``timings_ms["render_ms"]``, the render share of its floor).
+        self.render_ms = 0.0
 
     def reset(self, seed: int) -> None:
         """Start the scan of ``seed``, after the world's reset.
@@ -167,7 +171,9 @@ class Sensor:
             The frame: RGB, mask, ``T_world_camera``, intrinsics, time and the rendered depth
             (for the depth oracle tracker and diagnostics only).
         """
+        start = time.perf_counter()
         images = self.world.render()
+        self.render_ms += (time.perf_counter() - start) * 1e3
         mask = self.segmenter.segment(images.rgb, images.labels, self._rng)
         T = self.world.T_world_camera
         self.visibility.observe(images.labels, T)

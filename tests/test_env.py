@@ -272,9 +272,11 @@ def test_info_is_flat_and_alike_at_reset_and_step() -> None:
     assert all(not isinstance(v, (dict, list)) for v in metrics.values())
     assert reset_info["metrics"]["pb_residual_mean_m"] is None  # NaN (no model) -> None
     assert step_info["outcome"] == "consistent" and step_info["iterations"] == 1
-    assert {"modeler_total_ms", "scan_step_ms", "metrics_ms", "observation_ms"} <= set(
-        step_info["timings_ms"]
+    timings = step_info["timings_ms"]
+    assert {"modeler_total_ms", "scan_step_ms", "render_ms", "metrics_ms", "observation_ms"} <= set(
+        timings
     )
+    assert 0.0 < timings["render_ms"] < timings["scan_step_ms"]  # the step rendered its frames
     _, _, terminated, _, last = env.step(np.zeros(1, np.float32))
     assert terminated and last["final_metrics"]["stop_reason"] == "end_height"
     assert "wall_time_s" in last["final_metrics"]

@@ -121,10 +121,17 @@ def test_bench_ratios_come_from_figures_of_the_same_run():
     measured = {
         "train_steps_per_s_fast": 45.0,
         "train_steps_per_s_fast_lockstep": 30.0,
+        "env_steps_per_s_train_trees": 25.0,
+        "env_steps_per_s_side_by_side": 40.0,
         "env_steps_per_s_mix": 30.0,
     }
-    assert derived_figures(measured) == {
-        "train_over_env_fast": 0.75,
-        "train_over_env_fast_lockstep": 0.5,
-    }
+    assert derived_figures(measured) == pytest.approx(
+        {
+            "train_over_env_fast": 0.9,
+            "train_over_env_fast_lockstep": 0.6,
+            "env_parallel_efficiency": 0.8,
+            "train_over_side_by_side": 1.125,
+            "train_over_env_fast_mix_seeds": 0.75,
+        }
+    )
     assert derived_figures({"train_steps_per_s_fast": 45.0}) == {}  # no env figure this run

@@ -170,7 +170,8 @@ class BranchScanEnv(gym.Env):
     ``angle_deg``, ``camera_height_m``, ``progress``, ``outcome`` (latest iteration, "" before the
     first), ``iterations`` (this step), ``n_iterations``, ``rotated``, and with ``info_timings``
     ``timings_ms`` (modeler stages summed over the step's iterations, ``scan_step_ms``,
-    ``metrics_ms``, ``observation_ms``, ``env_step_ms``). When the scan ends (terminated):
+    ``render_ms`` (the renders of the step's frames), ``metrics_ms``, ``observation_ms``,
+    ``env_step_ms``). When the scan ends (terminated):
     ``final_metrics``, the :meth:`branch_gym.scoring.ScanResult.to_row` of
     the scan. After a ``TimeLimit`` truncation ``metrics`` is the final score.
 
@@ -301,9 +302,11 @@ class BranchScanEnv(gym.Env):
             )
         angle_deg = self._actions.to_angle_deg(action, self._session.angle_deg)
         env_ms: dict[str, float] = {}
+        render_ms_before = self._session.sensor.render_ms
         with stage_timer(env_ms, "env_step_ms"):
             with stage_timer(env_ms, "scan_step_ms"):
                 result = self._session.step(angle_deg)
+            env_ms["render_ms"] = self._session.sensor.render_ms - render_ms_before
             self._previous_action = self._actions.normalised(angle_deg)
             if result.reports:
                 self._last_report = result.reports[-1]

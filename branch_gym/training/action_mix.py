@@ -4,7 +4,8 @@ Training throughput depends on how often the policy rotates (a rotation step cos
 one). :class:`FixedActionMix` replaces whatever action the learner sends by a fixed schedule, so
 that a throughput figure (``bench/bench_train.py``: ``train_steps_per_s_fast``) does not depend on
 an untrained policy's whims; the single-core env rate it is compared with
-(``bench/bench_env.py``: ``env_steps_per_s_mix``) plays the same schedule.
+(``bench/bench_train.py``: ``env_steps_per_s_train_trees``, the same trees) plays the same
+schedule.
 """
 
 from __future__ import annotations
