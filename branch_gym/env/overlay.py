@@ -103,10 +103,12 @@ def draw_polyline(
         & (np.maximum(start_px[:, 1], end_px[:, 1]) >= -reach)
         & (np.minimum(start_px[:, 1], end_px[:, 1]) <= height - 1 + reach)
     )
+    vertices, widths = fixed.tolist(), thickness.tolist()  # Python ints for the cv2 calls
     for i in np.flatnonzero(ok[:-1] & ok[1:] & touches).tolist():
-        start = (int(fixed[i, 0]), int(fixed[i, 1]))
-        end = (int(fixed[i + 1, 0]), int(fixed[i + 1, 1]))
-        cv2.line(canvas, start, end, colour, int(thickness[i]), cv2.LINE_8, _SHIFT)
+        start, end = vertices[i], vertices[i + 1]
+        cv2.line(
+            canvas, (start[0], start[1]), (end[0], end[1]), colour, widths[i], cv2.LINE_8, _SHIFT
+        )
 
 
 def draw_model(
