@@ -69,6 +69,7 @@ FAST_STEPS = FAST_N_STEPS * N_ENVS  # steps of one rollout of the fast figures
 # Our choice: 4 rollouts and updates (~20 scans, ~1 min): one rollout holds ~5 scans per env, and
 # how long the slower env's scans take varies by ~20 % from one rollout to the next.
 FAST_ROLLOUTS = 4
+REPLAY_STEPS_PER_ENV = FAST_STEPS // N_ENVS * FAST_ROLLOUTS  # what each env plays in that run
 
 
 def _fast_config(n_envs: int = N_ENVS, worker_rollouts: bool = True) -> TrainConfig:
@@ -85,7 +86,7 @@ def _replay_s(rank: int, core: int | None = None) -> float:
     """Seconds env ``rank`` of the fast run takes to play its steps alone (resets included).
 
     The env (:func:`branch_gym.training.envs.make_env`: its trees, the fixed mix) plays
-    ``n_steps * FAST_ROLLOUTS`` steps from its first reset, resetting at episode ends as a
+    ``REPLAY_STEPS_PER_ENV`` steps from its first reset, resetting at episode ends as a
     training env does; the mix ignores the action sent. Its creation is not timed (as in the
     training figure).
 
@@ -100,17 +101,13 @@ def _replay_s(rank: int, core: int | None = None) -> float:
     action = np.zeros(env.action_space.shape, env.action_space.dtype)
     start = time.perf_counter()
     env.reset()
-    for _ in range(config.ppo.n_steps * FAST_ROLLOUTS):
+    for _ in range(REPLAY_STEPS_PER_ENV):
         _, _, terminated, truncated, _ = env.step(action)
         if terminated or truncated:
             env.reset()
     elapsed_s = time.perf_counter() - start
     env.close()
     return elapsed_s
-
-
-def _steps_per_env() -> int:
-    return _fast_config().ppo.n_steps * FAST_ROLLOUTS
 
 
 def env_steps_per_s_train_trees() -> float:
@@ -126,7 +123,7 @@ def env_steps_per_s_train_trees() -> float:
             elapsed_s = sum(_replay_s(rank) for rank in range(N_ENVS))
     finally:
         torch.set_num_threads(threads)  # make_env sets the worker's thread count
-    return N_ENVS * _steps_per_env() / elapsed_s
+    return N_ENVS * REPLAY_STEPS_PER_ENV / elapsed_s
 
 
 def env_steps_per_s_side_by_side() -> float:
@@ -142,7 +139,7 @@ def env_steps_per_s_side_by_side() -> float:
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(N_ENVS, mp_context=context) as pool:
         seconds = list(pool.map(_replay_s, range(N_ENVS), cores[:N_ENVS]))
-    return sum(_steps_per_env() / s for s in seconds)
+    return sum(REPLAY_STEPS_PER_ENV / s for s in seconds)
 
 
 def train_steps_per_s_fast(n_envs: int = N_ENVS, worker_rollouts: bool = True) -> float:

@@ -28,46 +28,33 @@ BENCHMARKS = [
     "bench.bench_ray",
 ]
 DEFAULT_OUT = Path(__file__).with_name("results.json")
-# Issue 14: PPO on 2 cores against twice the one-core env rate of the same steps (the training
-# run's trees and action mix, bench_train); a ratio only from figures of the same run (machines
-# differ by 2x).
-TRAIN_KEYS = {
-    "train_over_env_fast": "train_steps_per_s_fast",
-    "train_over_env_fast_lockstep": "train_steps_per_s_fast_lockstep",
-}
-SAME_STEPS_KEY = "env_steps_per_s_train_trees"
-# The same replays side by side (one process per core): what the machine allows 2 processes.
-SIDE_BY_SIDE_KEY = "env_steps_per_s_side_by_side"
-# The earlier denominator: the mix on bench_env's trees (not the training run's).
-MIX_SEEDS_RATIO = ("train_over_env_fast_mix_seeds", "train_steps_per_s_fast", "env_steps_per_s_mix")
 TRAIN_CORES = 2
+# Issue 14: ratios only from figures of the same run (machines differ by 2x), each
+# (name, numerator, denominator, cores): numerator / (cores x denominator). The training rates
+# over twice the one-core rate of the same steps (bench_train replays the training run's trees
+# and action mix); what the machine allows two processes side by side, and what training keeps of
+# it; the earlier denominator, the mix on bench_env's trees.
+RATIOS = (
+    ("train_over_env_fast", "train_steps_per_s_fast", "env_steps_per_s_train_trees", TRAIN_CORES),
+    ("train_over_env_fast_lockstep", "train_steps_per_s_fast_lockstep",
+     "env_steps_per_s_train_trees", TRAIN_CORES),
+    ("env_parallel_efficiency", "env_steps_per_s_side_by_side", "env_steps_per_s_train_trees",
+     TRAIN_CORES),
+    ("train_over_side_by_side", "train_steps_per_s_fast", "env_steps_per_s_side_by_side", 1),
+    ("train_over_env_fast_mix_seeds", "train_steps_per_s_fast", "env_steps_per_s_mix", TRAIN_CORES),
+)  # fmt: skip
 
 
 def derived_figures(measured: dict[str, float]) -> dict[str, float]:
-    """Ratios of figures measured in this run: ``train_over_env_fast`` (target >= 0.8).
-
-    Each training rate over twice the single-core rate of the same steps
-    (``env_steps_per_s_train_trees``); ``env_parallel_efficiency``: the side-by-side replays'
-    rate over that same twice (the machine's ceiling for the ratio); ``train_over_side_by_side``:
-    the worker-rollout rate over the side-by-side rate (what training itself loses); and
-    ``train_over_env_fast_mix_seeds``: the worker-rollout rate over twice ``env_steps_per_s_mix``
-    (bench_env's trees). Figures not measured in this run give no ratio.
-    """
+    """The :data:`RATIOS` whose two figures were measured in this run (and are finite):
+    ``train_over_env_fast`` has the target >= 0.8."""
     ratios = {}
-    env = measured.get(SAME_STEPS_KEY)
-    for ratio, key in TRAIN_KEYS.items():
-        if env and measured.get(key) is not None:
-            ratios[ratio] = measured[key] / (TRAIN_CORES * env)
-    side_by_side = measured.get(SIDE_BY_SIDE_KEY)
-    if env and side_by_side is not None and math.isfinite(side_by_side):
-        ratios["env_parallel_efficiency"] = side_by_side / (TRAIN_CORES * env)
-        if measured.get(TRAIN_KEYS["train_over_env_fast"]) is not None:
-            ratios["train_over_side_by_side"] = (
-                measured[TRAIN_KEYS["train_over_env_fast"]] / side_by_side
-            )
-    ratio, train_key, mix_key = MIX_SEEDS_RATIO
-    if measured.get(train_key) is not None and measured.get(mix_key):
-        ratios[ratio] = measured[train_key] / (TRAIN_CORES * measured[mix_key])
+    for name, numerator_key, denominator_key, cores in RATIOS:
+        numerator, denominator = measured.get(numerator_key), measured.get(denominator_key)
+        if numerator is None or denominator is None:
+            continue
+        if math.isfinite(numerator) and math.isfinite(denominator) and denominator > 0:
+            ratios[name] = numerator / (cores * denominator)
     return ratios
 
 
