@@ -88,6 +88,11 @@ class PrimaryBranchController:
     ) -> None:
         self.config = config or FollowControllerConfig()
         self.intrinsics = intrinsics or CameraIntrinsics.from_fov()
+        intr = self.intrinsics  # the projection's constants, as (u, v) pairs
+        self._focal_px = np.array([intr.fx, intr.fy], dtype=float)
+        self._center_px = np.array([intr.cx, intr.cy], dtype=float)
+        self._last_pixel = np.array([intr.width - 1, intr.height - 1], dtype=float)
+        self._middle_row_px = intr.height / 2.0
 
     def look_at_point(
         self, primary: BranchModel | None, T_world_camera: np.ndarray
@@ -109,22 +114,19 @@ class PrimaryBranchController:
         """
         if primary is None or len(primary.points) < 2:
             return None
-        intr = self.intrinsics
         R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
         points_camera = primary.points @ R - R.T @ t
-        z = points_camera[:, 2]
-        front = z > _FRONT_DEPTH_M
-        if not front.any():
+        candidates = np.flatnonzero(points_camera[:, 2] > _FRONT_DEPTH_M)
+        if not candidates.size:
             return None
-        candidates = np.flatnonzero(front)
-        u = intr.fx * points_camera[candidates, 0] / z[candidates] + intr.cx
-        v = intr.fy * points_camera[candidates, 1] / z[candidates] + intr.cy
-        in_view = (u >= 0) & (u <= intr.width - 1) & (v >= 0) & (v <= intr.height - 1)
-        if not in_view.any():
+        front = points_camera[candidates]
+        pixels = front[:, :2] * self._focal_px / front[:, 2:] + self._center_px  # (M, 2) u, v
+        inside = (pixels >= 0.0) & (pixels <= self._last_pixel)
+        in_view = np.flatnonzero(inside[:, 0] & inside[:, 1])
+        if not in_view.size:
             return None
-        u, v, candidates = u[in_view], v[in_view], candidates[in_view]
-        best = int(np.argmin(np.abs(v - intr.height / 2.0)))
-        return np.array([u[best], v[best]]), points_camera, int(candidates[best])
+        best = in_view[np.argmin(np.abs(pixels[in_view, 1] - self._middle_row_px))]
+        return pixels[best], points_camera, int(candidates[best])
 
     def command(self, primary: BranchModel | None, T_world_camera: np.ndarray) -> FollowCommand:
         """The camera twist for this control step."""

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -322,3 +323,27 @@ def test_rotation_exp_matches_scipy(angle_rad):
     R = rotation_exp(axis * angle_rad)
     np.testing.assert_allclose(R, Rotation.from_rotvec(axis * angle_rad).as_matrix(), atol=1e-15)
     np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-15)
+
+
+def test_direct_joint_rates_equal_the_dls_where_undamped_and_decline_otherwise() -> None:
+    from scipy.spatial.transform import Rotation
+
+    from branch_gym.sim.robot.motion import CameraMotion
+
+    config = RobotConfig()
+    motion = CameraMotion(config, JOINT_LIMIT_RAD, None, None, None)  # solves only
+    rng = np.random.default_rng(3)
+    R_world_camera = Rotation.from_rotvec(rng.normal(size=3)).as_matrix()
+    twist = rng.normal(size=6) * 0.05
+    U, _, Vt = np.linalg.svd(rng.normal(size=(6, 6)))
+    well_conditioned = U @ np.diag([1.0, 0.8, 0.6, 0.5, 0.4, 0.3]) @ Vt
+    direct = motion._undamped_joint_rates(well_conditioned, R_world_camera, twist)
+    svd = CameraMotion(replace(config, dls_direct_solve=False), JOINT_LIMIT_RAD, None, None, None)
+    dls, _ = svd._joint_rates(well_conditioned, R_world_camera, twist)
+    np.testing.assert_allclose(direct, dls, rtol=1e-10, atol=1e-12)
+    # Near the damping band the bound cannot prove the damping is zero; exactly singular fails.
+    near_singular = U @ np.diag([1.0, 0.8, 0.6, 0.5, 0.4, 0.5 * config.damping_sigma_band]) @ Vt
+    assert motion._undamped_joint_rates(near_singular, R_world_camera, twist) is None
+    singular = well_conditioned.copy()
+    singular[:, 2] = 0.0
+    assert motion._undamped_joint_rates(singular, R_world_camera, twist) is None

@@ -21,12 +21,15 @@ from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
+from scipy.linalg import lapack
 
 from branch_gym.sim.robot.config import MotionStatus, RobotConfig
 from branch_gym.sim.robot.kinematics import check_transform, pose_error, rotation_exp
 from branch_gym.sim.robot.ur5e_spec import JOINT_NAMES
 
 logger = logging.getLogger(__name__)
+
+_IDENTITY6 = np.eye(6)
 
 JacobianProvider = Callable[[np.ndarray], np.ndarray]
 """Joint angles (6,) -> (6, 6) Jacobian of the camera origin, world axes (state untouched)."""
@@ -188,9 +191,10 @@ class CameraMotion:
         most ``1 / damping_sigma_band`` proves ``sigma_min >= damping_sigma_band``, where
         :meth:`_damping_sq` is 0 and the SVD formula is the plain inverse.
         """
-        try:
-            J_inv = np.linalg.inv(J_world)
-        except np.linalg.LinAlgError:
+        # LAPACK gesv against the identity, as numpy.linalg.inv computes it (the same result),
+        # without numpy's checks and dispatch: 2 instead of 6 us, twice per control step.
+        _, _, J_inv, info = lapack.dgesv(J_world, _IDENTITY6)
+        if info != 0:  # exactly singular (info > 0); < 0 would be a bad argument
             return None
         entries = J_inv.ravel()
         if float(entries @ entries) * self.config.damping_sigma_band**2 > 1.0:
