@@ -18,7 +18,11 @@ from branch_gym.sim.robot.camera_mount import CameraMountConfig, T_flange_camera
 from branch_gym.sim.robot.config import InverseKinematicsError, MotionStatus, RobotConfig
 from branch_gym.sim.robot.home import camera_pose_facing_branch, home_configuration
 from branch_gym.sim.robot.kinematics import dh_forward_kinematics, dh_jacobian, rotation_log
-from branch_gym.sim.robot.motion import camera_twist_from_world, orbit_camera_twist
+from branch_gym.sim.robot.motion import (
+    CameraMotion,
+    camera_twist_from_world,
+    orbit_camera_twist,
+)
 from branch_gym.sim.robot.ur5e_spec import JOINT_LIMIT_RAD
 
 STEP_S = 1.0 / 60.0
@@ -327,8 +331,6 @@ def test_rotation_exp_matches_scipy(angle_rad):
 
 def test_direct_joint_rates_equal_the_dls_where_undamped_and_decline_otherwise() -> None:
     from scipy.spatial.transform import Rotation
-
-    from branch_gym.sim.robot.motion import CameraMotion
 
     config = RobotConfig()
     motion = CameraMotion(config, JOINT_LIMIT_RAD, None, None, None)  # solves only

@@ -25,11 +25,11 @@ from scipy.linalg import lapack
 
 from branch_gym.sim.robot.config import MotionStatus, RobotConfig
 from branch_gym.sim.robot.kinematics import check_transform, pose_error, rotation_exp
-from branch_gym.sim.robot.ur5e_spec import JOINT_NAMES
+from branch_gym.sim.robot.ur5e_spec import JOINT_NAMES, N_JOINTS
 
 logger = logging.getLogger(__name__)
 
-_IDENTITY6 = np.eye(6)
+_IDENTITY = np.eye(N_JOINTS)  # the right-hand side that makes gesv an inverse
 
 JacobianProvider = Callable[[np.ndarray], np.ndarray]
 """Joint angles (6,) -> (6, 6) Jacobian of the camera origin, world axes (state untouched)."""
@@ -193,7 +193,7 @@ class CameraMotion:
         """
         # LAPACK gesv against the identity, as numpy.linalg.inv computes it (the same result),
         # without numpy's checks and dispatch: 2 instead of 6 us, twice per control step.
-        _, _, J_inv, info = lapack.dgesv(J_world, _IDENTITY6)
+        _, _, J_inv, info = lapack.dgesv(J_world, _IDENTITY)
         if info != 0:  # exactly singular (info > 0); < 0 would be a bad argument
             return None
         entries = J_inv.ravel()
