@@ -4,6 +4,7 @@ Usage::
 
     python eval.py --policies none periodic:22.5:1.5 periodic:45:1.5 periodic:22.5:2.5 \\
         periodic:45:2.5 --trees 60 --seed 0 --workers 2 --out results/NAME \\
+        [--world clean|orchard] [--tree paper|tall_spindle|ufo|...] \\
         [--tracker lk|oracle] [--segmenter gt|noisy:mild|learned|...] [--speed 0.025] \\
         [--plot-trees 0 1 2] [--end-height 0.75] [--backend pool|ray] [--address ADDR] \\
         [--record DIR]
@@ -35,12 +36,14 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from branch_gym.env.config import TREE_PRESETS, tree_config
 from branch_gym.evaluation.config import EvalConfig, TrialError
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.ray_backend import RayUnavailableError, import_ray
 from branch_gym.evaluation.report import failure_reasons, format_comparison
 from branch_gym.evaluation.runner import ConfigMismatchError
 from branch_gym.scan import ScanConfig
+from branch_gym.sim.world import WORLDS, WorldConfig
 
 EXIT_USAGE = 2
 EXIT_TRIAL_FAILED = 1
@@ -82,6 +85,15 @@ def build_parser() -> argparse.ArgumentParser:
         "default: a private local Ray instance",
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument(
+        "--world",
+        choices=WORLDS,
+        default="clean",
+        help="clean (default): the paper's world; orchard: sky, row, trellis, camera model",
+    )
+    parser.add_argument(
+        "--tree", choices=TREE_PRESETS, default="paper", help="tree distribution (default paper)"
+    )
     parser.add_argument("--tracker", choices=("lk", "oracle"), help="point tracker")
     parser.add_argument(
         "--segmenter", help="segmenter spec: gt | noisy:mild|moderate|severe | learned[:PATH]"
@@ -119,7 +131,10 @@ def main(argv: list[str] | None = None) -> int:
         "end_height_m": args.end_height,
     }
     try:
-        scan = ScanConfig().replace(**{k: v for k, v in changes.items() if v is not None})
+        world = WorldConfig.preset(args.world, tree=tree_config(args.tree))
+        scan = ScanConfig(world=world).replace(
+            **{k: v for k, v in changes.items() if v is not None}
+        )
         config = EvalConfig(
             tuple(args.policies),
             args.trees,

@@ -8,6 +8,9 @@ Figures (medians, milliseconds):
   clutter) and the background disabled: the renderer's floor.
 * ``reset_ms``: ``World.reset`` with a new tree each time (tree drawing, meshes, textures, robot
   and home-pose IK).
+* ``render_frame_orchard_ms``, ``reset_orchard_ms``: the same on the orchard world (sky, row,
+  trellis, camera model; issue 31: <= 2x ``render_frame_ms`` of the same run, <= 300 ms), and
+  their ratio ``render_orchard_over_clean``.
 
 Only the timed call is measured: the camera motion between frames is not.
 """
@@ -61,17 +64,20 @@ def _bare_tree(seed: int) -> TreeGT:
     return TreeGT(primary=full.primary, seed=seed)
 
 
-def render_frame_ms(seeds: tuple[int, ...] = RENDER_SEEDS, bare: bool = False) -> float:
+def render_frame_ms(
+    seeds: tuple[int, ...] = RENDER_SEEDS, bare: bool = False, world_name: str = "clean"
+) -> float:
     """Median render time per frame over straight-up scans of the trees of ``seeds``.
 
     Args:
         seeds: Tree seeds (paper-default distribution).
         bare: Render the primary branch alone, without background.
+        world_name: "clean" or "orchard" (``WorldConfig.preset``).
 
     Returns:
         Median milliseconds per ``World.render`` call.
     """
-    config = WorldConfig()
+    config = WorldConfig.preset(world_name)
     if bare:
         config = WorldConfig(scene=SceneConfig(background=BackgroundConfig(enabled=False)))
     world = World(config)
@@ -86,9 +92,9 @@ def render_frame_ms(seeds: tuple[int, ...] = RENDER_SEEDS, bare: bool = False) -
         world.close()
 
 
-def reset_ms(seeds: tuple[int, ...] = RESET_SEEDS) -> float:
+def reset_ms(seeds: tuple[int, ...] = RESET_SEEDS, world_name: str = "clean") -> float:
     """Median ``World.reset`` time in milliseconds, a new tree per reset."""
-    world = World()
+    world = World(WorldConfig.preset(world_name))
     try:
         for seed in WARMUP_SEEDS:
             world.reset(seed)
@@ -111,6 +117,8 @@ def run() -> dict[str, float]:
             "render_frame_ms": render_frame_ms(),
             "render_frame_bare_ms": render_frame_ms(bare=True),
             "reset_ms": reset_ms(),
+            "render_frame_orchard_ms": render_frame_ms(world_name="orchard"),
+            "reset_orchard_ms": reset_ms(world_name="orchard"),
         }
     finally:
         cv2.setNumThreads(threads)

@@ -70,7 +70,9 @@ class ScanConfig:
             between: ~8x fewer renders, valid with the oracle tracker only (fast training).
         controller: Follow controller gains (speed is taken from ``speed_mps``).
         modeler: Reconstruction thresholds.
-        world: The simulated world.
+        world: The simulated world; a name ("clean", the default, or "orchard": sky, row,
+            trellis, camera model; :meth:`WorldConfig.preset`) stands for that preset with
+            the paper's tree.
     """
 
     speed_mps: float = 0.025
@@ -87,6 +89,12 @@ class ScanConfig:
     world: WorldConfig = field(default_factory=WorldConfig)
 
     def __post_init__(self) -> None:
+        if isinstance(self.world, str):
+            object.__setattr__(self, "world", WorldConfig.preset(self.world))
+        if not isinstance(self.world, WorldConfig):
+            raise ValueError(
+                f"ScanConfig.world must be a WorldConfig or a world name, got {self.world!r}"
+            )
         require_positive(
             self, "speed_mps", "control_dt_s", "max_scan_time_s", "rotation_tolerance_deg"
         )

@@ -2,7 +2,8 @@
 
 ``gymnasium.make("BranchScan-v0", tracker="oracle", tree="hard", end_height_m=0.5)`` reaches
 :func:`env_config_from_kwargs`, which turns the keywords into an :class:`EnvConfig`. The
-shortcuts ``tracker``, ``segmenter``, ``tree``, ``end_height_m``, ``speed_mps`` and
+shortcuts ``world`` ("clean" or "orchard"), ``tracker``, ``segmenter``, ``tree``,
+``end_height_m``, ``speed_mps`` and
 ``render_tracking_frames``, ``control_dt_s`` change the scan
 settings (``scan``, a :class:`branch_gym.scan.ScanConfig`); every other keyword is an
 :class:`EnvConfig` field.
@@ -29,10 +30,12 @@ from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.config import TreeConfig
 from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.validation import require_int, require_positive
+from branch_gym.sim.world import WORLDS, WorldConfig
 
-TREE_PRESETS = ("paper", "cluttered", "hard")
+TREE_PRESETS = ("paper", "cluttered", "hard", "tall_spindle", "ufo")
 RESET_OPTIONS = ("tree", "branch_value_s")
 SCAN_SHORTCUTS = (
+    "world",
     "tracker",
     "segmenter",
     "tree",
@@ -86,9 +89,8 @@ class EnvConfig:
     """Everything a :class:`branch_gym.env.BranchScanEnv` is made of.
 
     Attributes:
-        action_type: "continuous" (a target angle in [-1, 1] x theta_max), "discrete" (an
-            index into ``discrete_angles_deg``) or "trigger" (hold, or advance the paper's
-            rotation cycle with one of ``trigger_angles_deg``).
+        action_type: One of :data:`branch_gym.env.layout.ACTION_TYPES` (their spaces and
+            meanings: ``ACTION_DESCRIPTIONS`` there, decoding: :mod:`branch_gym.env.actions`).
         theta_max_deg: Angle of the continuous action's bounds and the normaliser of angles in
             the observation (the paper's largest angle, Table I: 45 deg).
         discrete_angles_deg: Target angles of the discrete action (the paper's angles, Table I);
@@ -183,7 +185,7 @@ class EnvConfig:
 
 
 def tree_config(tree: str | TreeConfig) -> TreeConfig:
-    """A tree distribution from a preset name ("paper", "cluttered", "hard") or a TreeConfig.
+    """A tree distribution from a preset name (:data:`TREE_PRESETS`) or a TreeConfig.
 
     Raises:
         ValueError: anything else, naming the presets.
@@ -216,6 +218,11 @@ def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
     scan = kwargs.pop("scan", None) or ScanConfig()
     if not isinstance(scan, ScanConfig):
         raise ValueError(f"scan must be a ScanConfig, got {scan!r}")
+    if "world" in shortcuts:
+        name = shortcuts.pop("world")
+        if not isinstance(name, str) or name not in WORLDS:
+            raise ValueError(f"world must be one of {WORLDS}, got {name!r}")
+        scan = replace(scan, world=WorldConfig.preset(name, tree=scan.world.tree))
     if "tree" in shortcuts:
         tree = tree_config(shortcuts.pop("tree"))
         scan = replace(scan, world=replace(scan.world, tree=tree))

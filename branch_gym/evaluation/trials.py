@@ -161,6 +161,9 @@ def trial_path(out: Path, policy: str, seed: int) -> Path:
 HASH_NEUTRAL_DEFAULTS = {
     "render_tracking_frames": True,
     "modeler.secondary_trust_redetected": False,
+    "world.orchard": None,
+    "world.tree.architecture": "paper",
+    "world.tree.primary_base_height_m": 0.0,
 }
 
 

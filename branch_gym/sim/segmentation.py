@@ -7,7 +7,10 @@ imitates those failures on top of the renderer's exact instance labels, reproduc
 ``rng`` it is given; :class:`GroundTruthSegmenter` is the oracle.
 
 Instance label image convention (renderer output, segmenter input): int32 (H, W) with
-0 = background / ground / backdrop, 1 = primary, 2 + i = secondary i, 100 + k = clutter object k.
+0 = background / ground / backdrop, 1 = primary, 2 + i = secondary i, 100 + k = clutter object k;
+the orchard world's sky, ground, trellis and row have labels of their own
+(``branch_gym/sim/scene/labels.py``). Clutter that leaks into a mask is anything but the sky and
+the ground.
 """
 
 from __future__ import annotations
@@ -19,12 +22,12 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from branch_gym.sim.scene.labels import (  # the label convention (module docstring)
+    BACKGROUND_LABEL,
+    is_occluding_clutter,
+    is_scanned_tree,
+)
 from branch_gym.sim.validation import require_non_negative
-
-BACKGROUND_LABEL = 0
-PRIMARY_LABEL = 1
-FIRST_SECONDARY_LABEL = 2
-FIRST_CLUTTER_LABEL = 100
 
 PRESET_NAMES = ("mild", "moderate", "severe")
 SEGMENTER_NAMES = ("gt", *(f"noisy:{preset}" for preset in PRESET_NAMES))
@@ -62,7 +65,7 @@ def _check_frame(rgb: np.ndarray, labels: np.ndarray) -> None:
 
 
 def _is_branch(label_ids: np.ndarray) -> np.ndarray:
-    return (label_ids >= PRIMARY_LABEL) & (label_ids < FIRST_CLUTTER_LABEL)
+    return is_scanned_tree(label_ids)
 
 
 class GroundTruthSegmenter:
@@ -184,7 +187,7 @@ class NoisySegmenter:
             widths = _apparent_widths_px(labels, branch_ids)
             thin = branch_ids[widths < cfg.thin_width_px]
             keep[thin[rng.random(len(thin)) < cfg.thin_drop_prob]] = False
-        clutter_ids = present[present >= FIRST_CLUTTER_LABEL]
+        clutter_ids = present[is_occluding_clutter(present)]
         if cfg.clutter_leak_prob > 0 and len(clutter_ids):
             keep[clutter_ids[rng.random(len(clutter_ids)) < cfg.clutter_leak_prob]] = True
         return keep

@@ -129,12 +129,9 @@ class PlanarBackground:
         nearest_inverse_depth = np.full(empty.shape, 1.0 / spec.far_m, dtype=np.float32)
         nearest_plane = np.full(empty.shape, -1, dtype=np.int8)
         for index, plane in enumerate(self._planes):
-            height_m = float(plane.normal @ T[:3, 3]) - plane.offset
-            if height_m <= 0:  # the camera is behind the plane, which faces away from it
+            inverse_depth = plane_inverse_depth(plane.normal, plane.offset, T, rays, u, v)
+            if inverse_depth is None:
                 continue
-            # On the plane n . (c + z r) = offset, so 1 / z = -(n . r) / height: affine in (u, v).
-            q = ((plane.normal @ rays) / -height_m).astype(np.float32)
-            inverse_depth = q[0] * u + q[1] * v + q[2]
             nearer = inverse_depth > nearest_inverse_depth
             np.copyto(nearest_inverse_depth, inverse_depth, where=nearer)
             np.copyto(nearest_plane, np.int8(index), where=nearer)
@@ -144,7 +141,10 @@ class PlanarBackground:
             if len(rows) == 0:
                 continue
             top, bottom = int(rows[0]), int(rows[-1]) + 1
-            warped = self._warp(plane, T, spec, top, bottom)
+            warped = warp_plane_rows(
+                plane.texture, plane.texel_m, plane.corner, (plane.axis_u, plane.axis_v), T,
+                spec, (top, bottom),
+            )  # fmt: skip
             cv2.copyTo(warped, mask[top:bottom].view(np.uint8), rgb[top:bottom])
         sky = (nearest_plane < 0) & empty
         if sky.any():
@@ -154,21 +154,74 @@ class PlanarBackground:
         )
         np.copyto(depth_m, depth, where=empty)
 
-    @staticmethod
-    def _warp(
-        plane: _Plane, T_world_camera: np.ndarray, spec: CameraSpec, top: int, bottom: int
-    ) -> np.ndarray:
-        """Image rows ``top:bottom`` of the plane's texture seen by the camera (nearest texel)."""
-        R, centre = T_world_camera[:3, :3], T_world_camera[:3, 3]
-        texels_to_camera = R.T @ np.stack(
-            [plane.axis_u * plane.texel_m, plane.axis_v * plane.texel_m, plane.corner - centre],
-            axis=1,
-        )  # maps homogeneous texel (i, j, 1) to a camera-frame point on the plane's ray
-        rows_to_pixels = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, top], [0.0, 0.0, 1.0]])
-        return cv2.warpPerspective(
-            plane.texture,
-            np.linalg.inv(spec.K @ texels_to_camera) @ rows_to_pixels,
-            (spec.width, bottom - top),
-            flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
-            borderMode=cv2.BORDER_WRAP,
-        )
+
+def plane_inverse_depth(
+    normal: np.ndarray,
+    offset: float,
+    T_world_camera: np.ndarray,
+    rays: np.ndarray,
+    u: np.ndarray,
+    v: np.ndarray,
+) -> np.ndarray | None:
+    """(H, W) float32 inverse z-depth (1/m) of the plane ``normal . x = offset`` per pixel.
+
+    Positive where the pixel's ray meets the plane in front of the camera; None when the camera
+    is behind the plane (which faces away from it).
+
+    Args:
+        normal: (3,) unit normal, pointing to the side the plane is seen from.
+        offset: The plane's offset in metres.
+        T_world_camera: (4, 4) camera pose.
+        rays: (3, 3) world ray (camera z = 1) per homogeneous pixel: ``R K^-1``.
+        u: Pixel columns (broadcastable to (H, W)), float32.
+        v: Pixel rows (broadcastable to (H, W)), float32.
+    """
+    height_m = float(normal @ T_world_camera[:3, 3]) - offset
+    if height_m <= 0:
+        return None
+    # On the plane n . (c + z r) = offset, so 1 / z = -(n . r) / height: affine in (u, v).
+    q = ((normal @ rays) / -height_m).astype(np.float32)
+    return q[0] * u + q[1] * v + q[2]
+
+
+def warp_plane_rows(
+    texture: np.ndarray,
+    texel_m: float,
+    corner: np.ndarray,
+    axes: tuple[np.ndarray, np.ndarray],
+    T_world_camera: np.ndarray,
+    spec: CameraSpec,
+    rows: tuple[int, int],
+    interpolation: int = cv2.INTER_NEAREST,
+    border: int = cv2.BORDER_WRAP,
+) -> np.ndarray:
+    """Image rows ``rows[0]:rows[1]`` of a plane's texture seen by the camera.
+
+    Args:
+        texture: (S, T, C) texture; texel (i, j) lies at ``corner + texel_m (j axis_u + i
+            axis_v)`` (i: row, j: column).
+        texel_m: Texel size in metres.
+        corner: (3,) world point of texel (0, 0).
+        axes: (3,) unit vectors along the texture's columns and rows.
+        T_world_camera: (4, 4) camera pose.
+        spec: Intrinsics.
+        rows: (top, bottom) image rows to produce.
+        interpolation: OpenCV interpolation flag.
+        border: OpenCV border mode outside the texture.
+
+    Returns:
+        (bottom - top, width, C) warped texture.
+    """
+    R, centre = T_world_camera[:3, :3], T_world_camera[:3, 3]
+    top, bottom = rows
+    texels_to_camera = R.T @ np.stack(
+        [axes[0] * texel_m, axes[1] * texel_m, corner - centre], axis=1
+    )  # maps homogeneous texel (i, j, 1) to a camera-frame point on the plane's ray
+    rows_to_pixels = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, top], [0.0, 0.0, 1.0]])
+    return cv2.warpPerspective(
+        texture,
+        np.linalg.inv(spec.K @ texels_to_camera) @ rows_to_pixels,
+        (spec.width, bottom - top),
+        flags=interpolation | cv2.WARP_INVERSE_MAP,
+        borderMode=border,
+    )

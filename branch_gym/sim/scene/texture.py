@@ -209,3 +209,64 @@ def write_png(image: np.ndarray, path: Path) -> Path:
     if not cv2.imwrite(str(path), image[:, :, ::-1], _PNG_FAST):
         raise ValueError(f"could not write PNG to {path}")
     return path
+
+
+# Dormant apple bark in an orchard (reference.md, "Real close-up frames": trunk mean sRGB
+# ~(72, 59, 43), from near-black to ~(125, 112, 104)); each scan draws a base colour in this
+# range and builds the palette around it.
+ORCHARD_BARK_BASE_RANGE: tuple[tuple[int, int, int], tuple[int, int, int]] = (
+    (56, 46, 36),
+    (120, 108, 98),
+)
+_FURROW_SHADE = 0.55  # furrows this fraction of the base colour (our choice)
+_RIDGE_SHADE = 1.45  # ridges this much brighter (our choice)
+# Lenticels: small light dashes across the branch (our choice: 0.5-1 mm x 1.5-3 mm, a few per
+# square centimetre on young apple wood).
+_LENTICELS_PER_CM2 = 1.5
+_LENTICEL_COLOUR = (176, 160, 136)
+# Lichen: grey-green patches on older wood (our choice: up to 15 % of the surface).
+_LICHEN_COLOUR = (138, 142, 124)
+_LICHEN_COVER_RANGE = (0.0, 0.1)
+_LICHEN_GRID = 12  # patch grid across a tile (~3 mm patches on a 5 mm radius branch)
+# Orchard ground in the dormant season: dry straw, soil and a little green (our choice).
+ORCHARD_GROUND_PALETTE: Palette = (
+    (0.0, (48, 40, 32)),
+    (0.35, (84, 72, 54)),
+    (0.7, (112, 100, 70)),
+    (0.9, (96, 104, 64)),
+    (1.0, (140, 128, 96)),
+)
+ORCHARD_GROUND = replace(GROUND, feature_min_m=0.03, palette=ORCHARD_GROUND_PALETTE)
+
+
+def orchard_bark(rng: np.random.Generator, config: TextureConfig = BARK) -> np.ndarray:
+    """Dormant apple bark: a drawn base colour, furrows, lenticels and lichen patches.
+
+    Keeps the trackable 1.5-4 mm features of ``config`` (module docstring).
+
+    Returns:
+        (size_px, size_px, 3) uint8 RGB image, rows along the branch, tiling.
+    """
+    low, high = (np.array(c, dtype=float) for c in ORCHARD_BARK_BASE_RANGE)
+    base = low + rng.random() * (high - low) + rng.normal(0.0, 4.0, 3)
+    palette = tuple(
+        (position, tuple(int(np.clip(round(c * shade), 0, 255)) for c in base))
+        for position, shade in ((0.0, _FURROW_SHADE), (0.5, 1.0), (1.0, _RIDGE_SHADE))
+    )
+    image = make_texture(rng, replace(config, palette=palette)).astype(np.float32)
+    size = config.size_px
+    cover = rng.uniform(*_LICHEN_COVER_RANGE)
+    coarse = rng.standard_normal((_LICHEN_GRID, _LICHEN_GRID)).astype(np.float32)
+    if cover > 0:  # a smooth field (patches ~1/_LICHEN_GRID of the tile), thresholded by cover
+        field = cv2.resize(coarse, (size, size), interpolation=cv2.INTER_CUBIC)
+        lichen = field > np.quantile(field, 1.0 - cover)
+        image[lichen] = 0.4 * image[lichen] + 0.6 * np.array(_LICHEN_COLOUR, np.float32)
+    area_cm2 = (size * config.texel_m * 100.0) ** 2
+    for _ in range(rng.poisson(_LENTICELS_PER_CM2 * area_cm2)):
+        centre = (int(rng.integers(0, size)), int(rng.integers(0, size)))
+        axes = (
+            max(1, round(rng.uniform(0.75e-3, 1.5e-3) / config.texel_m)),  # across the branch
+            max(1, round(rng.uniform(0.25e-3, 0.5e-3) / config.texel_m)),  # along it
+        )
+        cv2.ellipse(image, centre, axes, 0.0, 0.0, 360.0, _LENTICEL_COLOUR, -1)
+    return np.clip(image, 0, 255).astype(np.uint8)

@@ -40,7 +40,9 @@ from branch_gym.sim.bullet import Bullet
 from branch_gym.sim.scene.background import BackgroundConfig, PlanarBackground
 from branch_gym.sim.scene.camera import CameraImages, render_camera
 from branch_gym.sim.scene.camera_spec import CameraSpec
+from branch_gym.sim.scene.labels import FIRST_CLUTTER_LABEL, FIRST_SECONDARY_LABEL, PRIMARY_LABEL
 from branch_gym.sim.scene.texture import BARK, TextureConfig, make_texture, write_png
+from branch_gym.sim.scene.thin_mesh import thin_tubes_mesh
 from branch_gym.sim.scene.tree_mesh import TubeMeshConfig, tube_mesh, write_obj
 
 __all__ = [
@@ -54,9 +56,9 @@ __all__ = [
     "scene_folder",
 ]
 
-PRIMARY_LABEL = 1
-FIRST_SECONDARY_LABEL = 2
-FIRST_CLUTTER_LABEL = 100
+# Spurs, stubs and buds are millimetres thick: 6 sides, 3 rings each (our choice).
+DETAIL_SIDES = 6
+DETAIL_RINGS = 3
 
 
 class Branch(Protocol):
@@ -124,22 +126,27 @@ class TreeScene:
         tree: Tree,
         rng: np.random.Generator,
         config: SceneConfig | None = None,
+        bark_image: np.ndarray | None = None,
     ) -> None:
         """Create the bodies; the caller has called ``bullet.reset()`` (no leftover bodies).
 
         Args:
             bullet: The world.
-            tree: The tree (a ``trees.TreeGT``).
+            tree: The tree (a ``trees.TreeGT``); its ``details`` (spurs, stubs, buds, when it
+                has any) become one more link, labelled ``details_label(n_secondaries)``.
             rng: Draws the textures.
             config: Scene settings.
+            bark_image: (S, S, 3) uint8 bark texture to use instead of drawing ``config.bark``.
 
         Raises:
             ValueError: more secondaries than labels 2..99 allow, or a malformed branch.
             RuntimeError: pybullet refused a mesh.
         """
-        if len(tree.secondaries) > FIRST_CLUTTER_LABEL - FIRST_SECONDARY_LABEL:
+        n_labels = len(tree.secondaries) + (1 if getattr(tree, "details", None) else 0)
+        if n_labels > FIRST_CLUTTER_LABEL - FIRST_SECONDARY_LABEL:
             raise ValueError(
-                f"too many secondaries ({len(tree.secondaries)}): labels 2 + i must stay below 100"
+                f"too many secondaries ({len(tree.secondaries)}, plus a details label): labels "
+                "2 + i must stay below 100"
             )
         self.bullet = bullet
         self.config = config or SceneConfig()
@@ -149,10 +156,13 @@ class TreeScene:
         folder = scene_folder()
         folder.mkdir(parents=True, exist_ok=True)
         try:
-            bark_png = write_png(make_texture(rng, self.config.bark), folder / "bark.png")
+            if bark_image is None:
+                bark_image = make_texture(rng, self.config.bark)
+            bark_png = write_png(bark_image, folder / "bark.png")
+            details = list(getattr(tree, "details", []))
             tree_id = self._add_body(
                 [tree.primary, *tree.secondaries], PRIMARY_LABEL, self.config.tree_mesh,
-                bark_png, self.config.collision,
+                bark_png, self.config.collision, details,
             )  # fmt: skip
             self.tree_body_ids: tuple[int, ...] = (tree_id,)
             self.clutter_body_ids: tuple[int, ...] = ()
@@ -180,27 +190,37 @@ class TreeScene:
         mesh_config: TubeMeshConfig,
         texture_png: Path,
         collision: bool,
+        details: list[Branch] | None = None,
     ) -> int:
-        """One static multi-link body: base = ``branches[0]``, link k - 1 = ``branches[k]``."""
+        """One static multi-link body: base = ``branches[0]``, link k - 1 = ``branches[k]``.
+
+        ``details``, if any, are merged into one more link after the branches (thin meshes,
+        labelled with the next label; no collision shape: they are millimetres).
+        """
         p = self.bullet.p
         folder = texture_png.parent
+        meshes = [tube_mesh(branch.points, branch.radii, mesh_config) for branch in branches]
+        if details:
+            meshes.append(
+                thin_tubes_mesh([(d.points, d.radii) for d in details], DETAIL_RINGS, DETAIL_SIDES)
+            )
         visuals, collisions = [], []
-        for k, branch in enumerate(branches):
-            mesh = tube_mesh(branch.points, branch.radii, mesh_config)
+        for k, mesh in enumerate(meshes):
+            collide = collision and k < len(branches)
             obj = str(write_obj(mesh, folder / f"label_{first_label + k}.obj", texture_png))
             visuals.append(p.createVisualShape(pybullet.GEOM_MESH, fileName=obj))
             collisions.append(
                 p.createCollisionShape(
                     pybullet.GEOM_MESH, fileName=obj, flags=pybullet.GEOM_FORCE_CONCAVE_TRIMESH
                 )
-                if collision
+                if collide
                 else -1
             )
-            if visuals[-1] < 0 or (collision and collisions[-1] < 0):
+            if visuals[-1] < 0 or (collide and collisions[-1] < 0):
                 raise RuntimeError(
                     f"pybullet could not load the mesh of branch label {first_label + k}"
                 )
-        n_links = len(branches) - 1
+        n_links = len(meshes) - 1
         body = p.createMultiBody(
             baseMass=0.0,
             baseCollisionShapeIndex=collisions[0],
@@ -216,6 +236,6 @@ class TreeScene:
             linkJointTypes=[pybullet.JOINT_FIXED] * n_links,
             linkJointAxis=[[0.0, 0.0, 1.0]] * n_links,
         )
-        for k in range(len(branches)):
+        for k in range(len(meshes)):
             self.label_of[(body, k - 1)] = first_label + k  # k = 0 is the base (link -1)
         return body

@@ -11,6 +11,8 @@ from dataclasses import asdict, dataclass, fields, replace
 import numpy as np
 
 YAW_MODES = ("uniform", "toward_camera", "away_from_camera", "toward_or_away_camera")
+# Tree architectures: the paper's simulated tree, and two modern high-density orchard systems.
+ARCHITECTURES = ("paper", "tall_spindle", "ufo")
 # Instance labels 2 + i must stay below the first clutter label 100 (label-image convention).
 _MAX_SECONDARIES = 98
 
@@ -22,10 +24,21 @@ class TreeConfig:
     Ranges are ``(low, high)`` tuples sampled uniformly (integers inclusive); ``low == high``
     fixes a value. Angles in degrees, lengths in metres. Yaw is measured in the world xy plane
     from +x toward +y; elevation is the angle above the horizontal plane.
+
+    Presets: :meth:`paper` (the defaults), :meth:`cluttered` and :meth:`hard` (the paper's tree
+    with clutter), and two modern orchard architectures, :meth:`tall_spindle` and :meth:`ufo`.
     """
 
+    # Which tree this distribution models (one of ARCHITECTURES): a label for the world that
+    # builds around the tree (e.g. the orchard row adds a UFO tree's cordon and other uprights);
+    # the geometry comes from the fields below. "paper": the paper's simulated tree.
+    architecture: str = "paper"
+
     # --- primary (reference.md "Simulated world", paper VI-A) ---
-    primary_height_m: float = 1.0  # cubic Bezier from z = 0 to z = 1.0 m
+    primary_height_m: float = 1.0  # cubic Bezier from z = 0 to z = 1.0 m (top end height)
+    # Bottom end height of the primary: 0 in the paper (from the ground); a UFO upright rises
+    # from a low horizontal cordon (our choice for the preset: 0.15 m, below the scan start).
+    primary_base_height_m: float = 0.0
     primary_top_offset_range_m: tuple[float, float] = (-0.10, 0.10)  # top end x, y offset
     primary_max_tilt_deg: float = 30.0  # inner control points tilted at most 30 deg
     primary_max_handle_fraction: float = 0.5  # handle length at most half the branch length
@@ -118,6 +131,11 @@ class TreeConfig:
         )
         _require(0 <= self.yaw_spread_deg <= 180, "yaw_spread_deg", "must be in [0, 180]")
         _require(self.yaw_mode in YAW_MODES, "yaw_mode", f"must be one of {YAW_MODES}")
+        _require(
+            self.architecture in ARCHITECTURES,
+            "architecture",
+            f"must be one of {ARCHITECTURES}, got {self.architecture!r}",
+        )
         elevation = self.secondary_elevation_range_deg
         _require(
             -90 <= elevation[0] and elevation[1] <= 90,
@@ -137,6 +155,23 @@ class TreeConfig:
                 name,
                 "must lie within [0, primary_height_m]",
             )
+        base_m = self.primary_base_height_m
+        _require(
+            bool(np.isfinite(base_m)) and 0 <= base_m < self.primary_height_m,
+            "primary_base_height_m",
+            f"must lie in [0, primary_height_m), got {base_m}",
+        )
+        lowest_use_m = min(
+            self.placement_height_m,
+            self.primary_radius_reference_height_m,
+            self.secondary_base_height_range_m[0],
+        )
+        _require(
+            base_m <= lowest_use_m,
+            "primary_base_height_m",
+            "must not exceed placement_height_m, primary_radius_reference_height_m or the low "
+            f"end of secondary_base_height_range_m (the primary must reach them), got {base_m}",
+        )
 
     def to_dict(self) -> dict:
         """Plain JSON-able values (tuples become lists)."""
@@ -169,6 +204,58 @@ class TreeConfig:
             secondary_radius_scale_range=(0.4, 0.8),
             yaw_mode="toward_or_away_camera",
             yaw_spread_deg=30.0,
+        )
+
+    @classmethod
+    def tall_spindle(cls) -> TreeConfig:
+        """A tall-spindle (or V-trellis) leader with weak fruiting branches; no clutter.
+
+        The leader is thick, nearly straight and nearly vertical: radius U(8, 14) mm at the
+        reference height (real close-up frames, reference.md: trunks and leaders read 10-25 px
+        wide at 0.2-0.5 m from the 416.8 px focal camera, i.e. radius ~5-15 mm). Fruiting
+        branches (the secondaries) are near horizontal to drooping and kept under half the
+        leader's diameter by pruning (orchard practice), which matches the real frames' side
+        branches (2-10 px, mean ~7, against 10-25 px leaders: ratio ~0.4).
+        """
+        return cls(
+            architecture="tall_spindle",
+            # Leader: our choice for "nearly straight": a few cm of top offset, small tilt.
+            primary_top_offset_range_m=(-0.03, 0.03),
+            primary_max_tilt_deg=5.0,
+            primary_radius_range_m=(0.008, 0.014),  # real frames (above)
+            primary_taper_per_m=0.25,  # gentle taper: our choice
+            # Fruiting branches: orchard practice (brief): 3-8 in the scan band, 10-30 cm long.
+            secondary_count_range=(3, 8),
+            secondary_base_height_range_m=(0.325, 0.75),  # the paper's scan band
+            secondary_elevation_range_deg=(-25.0, 20.0),  # near horizontal to drooping
+            secondary_length_range_m=(0.10, 0.30),
+            # Radius 0.3-0.5 x the leader: the "under half the leader's diameter" pruning rule
+            # (orchard practice); real frames' branch / leader width ratio ~0.4 (above).
+            secondary_radius_scale_range=(0.3, 0.5),
+            secondary_tip_radius_fraction=0.6,  # longer branches, more taper: our choice
+            secondary_bend_strength_range_per_m=(0.0, 1.0),  # mild bending: our choice
+        )
+
+    @classmethod
+    def ufo(cls) -> TreeConfig:
+        """One upright of a UFO (upright fruiting offshoots) tree, with short lateral shoots.
+
+        The primary is a vertical upright rising from a low horizontal cordon at
+        ``primary_base_height_m`` (the cordon itself and the tree's other uprights are the
+        world's to add: ``architecture="ufo"``); no clutter.
+        """
+        return cls(
+            architecture="ufo",
+            primary_base_height_m=0.15,  # cordon height: our choice, below the scan start
+            # Upright: our choice for "near straight": a few cm of top offset, small tilt.
+            primary_top_offset_range_m=(-0.03, 0.03),
+            primary_max_tilt_deg=5.0,
+            primary_radius_range_m=(0.005, 0.010),  # U(5, 10) mm: orchard practice (brief)
+            # Short lateral fruiting shoots: orchard practice (brief).
+            secondary_count_range=(2, 5),
+            secondary_elevation_range_deg=(0.0, 60.0),
+            secondary_length_range_m=(0.05, 0.15),
+            secondary_radius_scale_range=(0.3, 0.6),
         )
 
 

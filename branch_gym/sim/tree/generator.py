@@ -20,6 +20,14 @@ Radius tapering: every branch's radius changes linearly with arc length.
 
 The authors' Blender tubes have constant radii: ``primary_taper_per_m=0`` and
 ``secondary_tip_radius_fraction=1`` reproduce them exactly.
+
+Architectures (``TreeConfig.architecture``): the presets ``TreeConfig.tall_spindle()`` and
+``TreeConfig.ufo()`` use this same sampler with other ranges; a UFO upright starts at
+``primary_base_height_m`` (its cordon's height) instead of the ground.
+
+Details: :func:`generate_tree` leaves ``TreeGT.details`` (spurs, pruning stubs, buds) empty. The
+world that wants them calls ``branch_gym.sim.tree.details.grow_details`` with its own random
+stream, so that adding details never changes the tree a seed gives.
 """
 
 from __future__ import annotations
@@ -60,7 +68,8 @@ def generate_tree(config: TreeConfig, rng: np.random.Generator, seed: int | None
         seed: Recorded in the result (the seed ``rng`` was made from), not used for sampling.
 
     Returns:
-        The tree in the world frame (z up, ground z = 0, camera on the -y side).
+        The tree in the world frame (z up, ground z = 0, camera on the -y side). Its
+        ``details`` are left empty (``details.grow_details`` adds them from another stream).
     """
     primary = _sample_branch_trunk(config, rng, config.primary_radius_range_m)
     base_xy = _point_and_radius_at_height(primary, config.placement_height_m)[0][:2]
@@ -77,14 +86,15 @@ def generate_tree(config: TreeConfig, rng: np.random.Generator, seed: int | None
 def sample_primary_bezier(config: TreeConfig, rng: np.random.Generator) -> np.ndarray:
     """Control points of a primary branch standing at the origin, before placement.
 
-    The base is at (0, 0, 0), the top at (dx, dy, primary_height_m) with dx, dy drawn from
-    ``primary_top_offset_range_m``. Each inner control point lies in a cone about the base-to-top
-    axis: tilt U(0, max tilt), azimuth U(0, 360) deg, handle length U(0, max fraction x length).
+    The base is at (0, 0, primary_base_height_m), the top at (dx, dy, primary_height_m) with
+    dx, dy drawn from ``primary_top_offset_range_m``. Each inner control point lies in a cone
+    about the base-to-top axis: tilt U(0, max tilt), azimuth U(0, 360) deg, handle length
+    U(0, max fraction x length).
 
     Returns:
         (4, 3) control points in metres.
     """
-    start = np.zeros(3)
+    start = np.array([0.0, 0.0, config.primary_base_height_m])
     top_dx_m, top_dy_m = rng.uniform(*config.primary_top_offset_range_m, size=2)
     end = np.array([top_dx_m, top_dy_m, config.primary_height_m])
     length_m = float(np.linalg.norm(end - start))

@@ -1,8 +1,8 @@
 """Ground truth of a generated tree: dense branch centerlines with radii, and JSON round trips.
 
 :class:`BranchGT` is one branch (points base -> tip, radius per point); :class:`TreeGT` is the
-scanned primary, its secondaries and the background clutter (``sim/tree/generator.py`` makes
-them).
+scanned primary, its secondaries, the background clutter (``sim/tree/generator.py`` makes them)
+and the scanned tree's unscored details (``sim/tree/details.py`` grows them).
 """
 
 from __future__ import annotations
@@ -68,29 +68,40 @@ class TreeGT:
         secondaries: Side branches, each starting on the primary centerline at its base.
         clutter: Background trees and trellis wires: rendered, not part of the scanned tree.
         seed: The seed the tree was generated from, when known.
+        details: The scanned tree's small parts (fruiting spurs, pruning stubs, buds), each a
+            short branch starting on the primary's or a secondary's centerline: rendered as
+            part of the scanned tree, never scored as side branches. ``generate_tree`` leaves
+            it empty; ``details.grow_details`` fills it from the world's own random stream.
     """
 
     primary: BranchGT
     secondaries: list[BranchGT] = field(default_factory=list)
     clutter: list[BranchGT] = field(default_factory=list)
     seed: int | None = None
+    details: list[BranchGT] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        return {
+        """Plain JSON-able values; ``details`` only when there are some (older files match)."""
+        data = {
             "seed": self.seed,
             "primary": self.primary.to_dict(),
             "secondaries": [b.to_dict() for b in self.secondaries],
             "clutter": [b.to_dict() for b in self.clutter],
         }
+        if self.details:
+            data["details"] = [b.to_dict() for b in self.details]
+        return data
 
     @classmethod
     def from_dict(cls, data: dict) -> TreeGT:
+        """Inverse of :meth:`to_dict`; a missing ``details`` key (older files) means none."""
         seed = data.get("seed")
         return cls(
             primary=BranchGT.from_dict(data["primary"]),
             secondaries=[BranchGT.from_dict(b) for b in data.get("secondaries", [])],
             clutter=[BranchGT.from_dict(b) for b in data.get("clutter", [])],
             seed=None if seed is None else int(seed),
+            details=[BranchGT.from_dict(b) for b in data.get("details", [])],
         )
 
     def save_json(self, path: str | Path) -> None:

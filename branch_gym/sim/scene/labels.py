@@ -1,0 +1,69 @@
+"""Instance labels of rendered frames: one integer per pixel saying what it shows.
+
+=====================  ==============================================================
+label                  what
+=====================  ==============================================================
+0                      background of the clean world (its painted ground and wall)
+1                      the scanned primary branch
+2 + i                  the scanned tree's secondary i (``TreeGT.secondaries[i]``)
+2 + n                  the rest of the scanned tree, not scored (``TreeGT.details``:
+                       spurs, stubs, buds; other uprights and the cordon of a UFO tree),
+                       n = number of secondaries
+100 + k                clutter object k of the clean world (``TreeGT.clutter``)
+200                    sky (orchard world)
+201                    ground (orchard world)
+202                    trellis posts (orchard world)
+203                    trellis wires, ties and clips (orchard world)
+300                    the neighbouring trees of the row (orchard world)
+301 + k                the k-th row behind (orchard world, impostors)
+=====================  ==============================================================
+
+Everything in ``[1, 100)`` is the scanned tree: the ground-truth mask of a segmenter.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+BACKGROUND_LABEL = 0
+PRIMARY_LABEL = 1
+FIRST_SECONDARY_LABEL = 2
+FIRST_CLUTTER_LABEL = 100
+SKY_LABEL = 200
+GROUND_LABEL = 201
+POST_LABEL = 202
+WIRE_LABEL = 203
+FIRST_ROW_TREE_LABEL = 300
+
+__all__ = [
+    "BACKGROUND_LABEL",
+    "FIRST_CLUTTER_LABEL",
+    "FIRST_ROW_TREE_LABEL",
+    "FIRST_SECONDARY_LABEL",
+    "GROUND_LABEL",
+    "POST_LABEL",
+    "PRIMARY_LABEL",
+    "SKY_LABEL",
+    "WIRE_LABEL",
+    "details_label",
+    "is_occluding_clutter",
+    "is_scanned_tree",
+]
+
+
+def details_label(n_secondaries: int) -> int:
+    """The label of the scanned tree's unscored parts, after its ``n_secondaries`` secondaries."""
+    return FIRST_SECONDARY_LABEL + n_secondaries
+
+
+def is_scanned_tree(labels: np.ndarray) -> np.ndarray:
+    """(same shape) bool: True where a label belongs to the scanned tree (``[1, 100)``)."""
+    return (labels >= PRIMARY_LABEL) & (labels < FIRST_CLUTTER_LABEL)
+
+
+def is_occluding_clutter(labels: np.ndarray) -> np.ndarray:
+    """(same shape) bool: objects that are not the scanned tree but look like it to a segmenter.
+
+    Clutter of the clean world, posts, wires and the row's trees; not the sky or the ground.
+    """
+    return (labels >= FIRST_CLUTTER_LABEL) & (labels != SKY_LABEL) & (labels != GROUND_LABEL)

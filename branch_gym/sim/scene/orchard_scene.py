@@ -1,0 +1,322 @@
+"""The orchard world's scene: the scanned tree in a dormant row, under a sky, seen by a real camera.
+
+:class:`OrchardScene` builds on :class:`~branch_gym.sim.scene.tree_scene.TreeScene` (the scanned
+tree, now with dormant bark and its spurs, stubs and buds) and adds, all drawn from the scan's
+generator:
+
+* the row (``sim/scene/orchard_row.py``): neighbours as real geometry with true depth (one
+  multi-link body, a low-polygon merged mesh per tree), the rows behind as depth-correct
+  impostors (``sim/scene/impostor.py``), posts, wires and clips;
+* the sky (``sim/scene/sky.py``): overcast, clear or low sun; it sets the renderer's light (sun
+  direction, direct and ambient strength);
+* the camera (``sim/scene/camera_model.py``): motion blur, vignetting, white balance,
+  auto-exposure, noise, JPEG.
+
+A frame is rendered in linear radiance: the bodies by pybullet (its 8-bit sRGB output taken to
+linear), the empty pixels painted by :class:`~branch_gym.sim.scene.orchard_background.
+OrchardBackground`; the camera model then turns radiance into the 8-bit image. Depth and labels
+are exact (labels: ``sim/scene/labels.py``).
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pybullet
+
+from branch_gym.sim.bullet import Bullet
+from branch_gym.sim.scene.camera import CameraImages, Lighting, render_camera
+from branch_gym.sim.scene.camera_model import CameraConfig, CameraModel
+from branch_gym.sim.scene.camera_spec import CameraSpec
+from branch_gym.sim.scene.impostor import ImpostorPlane, row_strips
+from branch_gym.sim.scene.labels import (
+    FIRST_ROW_TREE_LABEL,
+    POST_LABEL,
+    WIRE_LABEL,
+    details_label,
+)
+from branch_gym.sim.scene.orchard_background import OrchardBackground, srgb_to_linear
+from branch_gym.sim.scene.orchard_row import (
+    OrchardRow,
+    OrchardRowConfig,
+    ScanView,
+    generate_row,
+)
+from branch_gym.sim.scene.sky import Sky, SkyConfig
+from branch_gym.sim.scene.texture import (
+    ORCHARD_GROUND,
+    TextureConfig,
+    make_texture,
+    orchard_bark,
+    write_png,
+)
+from branch_gym.sim.scene.thin_mesh import merge_meshes, thin_tubes_mesh
+from branch_gym.sim.scene.tree_mesh import TubeMesh, write_obj
+from branch_gym.sim.scene.tree_scene import SceneConfig, TreeScene, scene_folder
+from branch_gym.sim.tree.details import DetailConfig
+from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
+
+__all__ = ["OrchardConfig", "OrchardScene"]
+
+# Level of detail of the row's meshes (our choice: twigs 1-6 mm thick seen from 0.3 m or more).
+_ROW_RINGS = 3
+_ROW_SIDES = 4
+_POST_SIDES = 10
+_WIRE_SIDES = 4
+_THICK_M = 0.006  # branches thicker than this get 6 sides
+_THICK_SIDES = 6
+# Wire and post colours (our choice: galvanised steel, weathered wood, green-grey steel posts).
+_WIRE_RGB = (150, 150, 146)
+_WOOD_POST_RGB = (104, 86, 66)
+_STEEL_POST_RGB = (92, 104, 96)
+_FLAT_TEXTURE_PX = 8
+_STEEL_POST_PROBABILITY = 0.3  # our choice: most orchard posts are treated wood
+# The renderer's light from the sky (pybullet's lighting is Lambert on the texture colour):
+# its coefficients are capped so that a lit white surface stays below the 8-bit ceiling.
+_MAX_AMBIENT = 0.85
+_MAX_DIFFUSE = 0.8
+
+
+@dataclass(frozen=True)
+class OrchardConfig:
+    """What the orchard world adds to the clean one; every part drawn from the scan's seed.
+
+    Attributes:
+        row: Neighbours, rows behind and trellis.
+        sky: The sky (kind, sun, clouds).
+        camera: The photometric camera model.
+        ground_texture: Grass and soil.
+        details: Spurs, stubs and buds on the scanned tree (``sim/tree/details.py``).
+        background_scale: The sky, ground and rows behind are painted at 1/this resolution and
+            upsampled (our choice: 2; all of it is 3 m or more away, where a pixel covers 8 mm
+            or more, or at infinity; it keeps a frame within twice the clean world's cost).
+    """
+
+    row: OrchardRowConfig = field(default_factory=OrchardRowConfig)
+    sky: SkyConfig = field(default_factory=SkyConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig.realistic)
+    ground_texture: TextureConfig = ORCHARD_GROUND
+    details: DetailConfig = field(default_factory=DetailConfig.orchard)
+    background_scale: int = 2
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.background_scale, int) and self.background_scale in (1, 2, 4)):
+            raise ValueError(
+                f"OrchardConfig.background_scale must be 1, 2 or 4, got {self.background_scale!r}"
+            )
+        for name, kind in (
+            ("row", OrchardRowConfig),
+            ("sky", SkyConfig),
+            ("camera", CameraConfig),
+            ("ground_texture", TextureConfig),
+            ("details", DetailConfig),
+        ):
+            if not isinstance(getattr(self, name), kind):
+                raise ValueError(
+                    f"OrchardConfig.{name} must be a {kind.__name__}, got {getattr(self, name)!r}"
+                )
+
+
+class OrchardScene:
+    """The scanned tree in its row (module docstring).
+
+    Attributes:
+        tree_scene: The scanned tree's bodies (primary, secondaries, details).
+        row: The row's geometry.
+        sky: The scan's sky.
+        camera: The camera model (its exposure state persists over a scan).
+        label_of: Instance label per (body, link), the scanned tree's and the row's.
+        tree_body_ids: The scanned tree's bodies (robot contact checks).
+    """
+
+    def __init__(
+        self,
+        bullet: Bullet,
+        tree: TreeGT,
+        rng: np.random.Generator,
+        scene_config: SceneConfig,
+        config: OrchardConfig,
+        architecture: str,
+        band_m: tuple[float, float],
+        view: ScanView | None = None,
+    ) -> None:
+        """Build the scene; the caller has called ``bullet.reset()``.
+
+        Args:
+            bullet: The world.
+            tree: The scanned tree, with its details.
+            rng: Source of every draw.
+            scene_config: Meshes of the scanned tree.
+            config: The orchard.
+            architecture: The tree architecture (the row's neighbours follow it).
+            band_m: (low, high) scan heights in metres.
+            view: The scanning camera's poses (neighbour branches none can see are dropped).
+        """
+        self.bullet = bullet
+        self.config = config
+        bark = orchard_bark(rng, scene_config.bark)
+        self.tree_scene = TreeScene(bullet, tree, rng, scene_config, bark_image=bark)
+        self.tree_body_ids = self.tree_scene.tree_body_ids
+        self.label_of = dict(self.tree_scene.label_of)
+        strips = row_strips(config.row)
+        self.row: OrchardRow = generate_row(
+            config.row, rng, tree, architecture, band_m, len(strips.strips), view
+        )
+        self.sky = Sky(config.sky, rng)
+        self.camera = CameraModel(config.camera, rng)
+        self._noise_rng = rng.spawn(1)[0]  # per-frame sensor noise
+        scanned_detail_label = details_label(len(tree.secondaries))
+        folder = scene_folder()
+        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            self._add_row_body(folder, bark, scanned_detail_label)
+            self._add_trellis(folder, rng)
+        finally:
+            shutil.rmtree(folder, ignore_errors=True)
+        impostors = [ImpostorPlane(back_row, strips) for back_row in self.row.back_rows]
+        ambient, sun_light = self._light_levels()
+        self.background = OrchardBackground(
+            self.sky,
+            make_texture(rng, config.ground_texture),
+            config.ground_texture.texel_m,
+            impostors,
+            [FIRST_ROW_TREE_LABEL + 1 + k for k in range(len(impostors))],
+            ambient,
+            sun_light,
+            scale=config.background_scale,
+        )
+        sun = self.sky.sun_direction
+        self.lighting = Lighting(
+            direction=tuple(float(c) for c in sun),
+            colour=(1.0, 1.0, 1.0),
+            ambient=ambient,
+            diffuse=sun_light,
+            specular=0.0,
+        )
+
+    def _light_levels(self) -> tuple[float, float]:
+        """(ambient, direct) light for the renderer, from the sky (capped: module constants)."""
+        ambient = float(np.clip(np.mean(self.sky.ambient_rgb), 0.05, _MAX_AMBIENT))
+        sun_light = float(np.clip(self.sky.sun_radiance, 0.0, _MAX_DIFFUSE))
+        return ambient, sun_light
+
+    def _add_row_body(self, folder: Path, bark: np.ndarray, scanned_detail_label: int) -> None:
+        """One multi-link body: link k = row tree k (the UFO cordon joins the scanned tree)."""
+        p = self.bullet.p
+        bark_png = write_png(bark, folder / "row_bark.png")
+        neighbours = [b for tree in self.row.trees if not tree.same_tree for b in tree.branches]
+        own = [b for tree in self.row.trees if tree.same_tree for b in tree.branches]
+        if self.row.cordon is not None:
+            own.append(self.row.cordon)
+        parts = [(neighbours, FIRST_ROW_TREE_LABEL), (own, scanned_detail_label)]
+        parts = [(branches, label) for branches, label in parts if branches]
+        if not parts:
+            return
+        visuals, labels = [], []
+        for k, (branches, label) in enumerate(parts):
+            mesh = _lod_mesh(branches)
+            obj = write_obj(mesh, folder / f"row_{k}.obj", bark_png)
+            visuals.append(p.createVisualShape(pybullet.GEOM_MESH, fileName=str(obj)))
+            labels.append(label)
+        self._add_static_body(visuals, labels)
+
+    def _add_trellis(self, folder: Path, rng: np.random.Generator) -> None:
+        """Posts (one body) and wires with clips (another), each its own flat texture."""
+        p = self.bullet.p
+        if self.row.posts:
+            steel = rng.random() < _STEEL_POST_PROBABILITY
+            colour = _STEEL_POST_RGB if steel else _WOOD_POST_RGB
+            texture = write_png(_flat_texture(colour), folder / "post.png")
+            posts = [
+                BranchGT(
+                    np.array([[post.x_m, post.y_m, 0.0], [post.x_m, post.y_m, post.height_m]]),
+                    np.full(2, post.radius_m),
+                )
+                for post in self.row.posts
+            ]
+            mesh = thin_tubes_mesh([(b.points, b.radii) for b in posts], 2, _POST_SIDES)
+            obj = write_obj(mesh, folder / "posts.obj", texture)
+            self._add_static_body(
+                [p.createVisualShape(pybullet.GEOM_MESH, fileName=str(obj))], [POST_LABEL]
+            )
+        wires = [*self.row.wires, *self.row.clips]
+        if wires:
+            texture = write_png(_flat_texture(_WIRE_RGB), folder / "wire.png")
+            mesh = merge_meshes(
+                [thin_tubes_mesh([(w.points, w.radii)], len(w.points), _WIRE_SIDES) for w in wires]
+            )
+            obj = write_obj(mesh, folder / "wires.obj", texture)
+            self._add_static_body(
+                [p.createVisualShape(pybullet.GEOM_MESH, fileName=str(obj))], [WIRE_LABEL]
+            )
+
+    def _add_static_body(self, visuals: list[int], labels: list[int]) -> int:
+        if any(v < 0 for v in visuals):
+            raise RuntimeError("pybullet could not load a mesh of the orchard row")
+        p = self.bullet.p
+        n_links = len(visuals) - 1
+        body = p.createMultiBody(
+            baseMass=0.0,
+            baseCollisionShapeIndex=-1,
+            baseVisualShapeIndex=visuals[0],
+            linkMasses=[0.0] * n_links,
+            linkCollisionShapeIndices=[-1] * n_links,
+            linkVisualShapeIndices=visuals[1:],
+            linkPositions=[[0.0, 0.0, 0.0]] * n_links,
+            linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
+            linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n_links,
+            linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
+            linkParentIndices=[0] * n_links,
+            linkJointTypes=[pybullet.JOINT_FIXED] * n_links,
+            linkJointAxis=[[0.0, 0.0, 1.0]] * n_links,
+        )
+        for k, label in enumerate(labels):
+            self.label_of[(body, k - 1)] = label
+        return body
+
+    def reset_camera(self) -> None:
+        """Start a new scan: forget the auto-exposure state."""
+        self.camera.reset()
+
+    def render(
+        self,
+        T_world_camera: np.ndarray,
+        spec: CameraSpec | None = None,
+        image_motion_px: tuple[float, float] | None = None,
+    ) -> CameraImages:
+        """RGB through the camera model, exact depth and instance labels.
+
+        Args:
+            T_world_camera: (4, 4) camera pose.
+            spec: Intrinsics and clip planes.
+            image_motion_px: (du, dv) image motion during the exposure (motion blur), or None.
+        """
+        spec = spec or CameraSpec()
+        images = render_camera(
+            self.bullet, T_world_camera, spec, label_of=self.label_of, lighting=self.lighting
+        )
+        empty = np.isinf(images.depth_m)
+        radiance = srgb_to_linear(images.rgb)
+        self.background.paint(radiance, images.depth_m, images.labels, empty, T_world_camera, spec)
+        rgb = self.camera.expose(radiance, image_motion_px, self._noise_rng)
+        return CameraImages(rgb=rgb, depth_m=images.depth_m, labels=images.labels)
+
+
+def _lod_mesh(branches: list[BranchGT]) -> TubeMesh:
+    """One mesh for a row tree: thick wood with 6 sides, twigs with 4 (level of detail)."""
+    thick = [(b.points, b.radii) for b in branches if b.radii[0] > _THICK_M]
+    thin = [(b.points, b.radii) for b in branches if b.radii[0] <= _THICK_M]
+    meshes = []
+    if thick:
+        meshes.append(thin_tubes_mesh(thick, _ROW_RINGS + 2, _THICK_SIDES))
+    if thin:
+        meshes.append(thin_tubes_mesh(thin, _ROW_RINGS, _ROW_SIDES))
+    return merge_meshes(meshes)
+
+
+def _flat_texture(rgb: tuple[int, int, int]) -> np.ndarray:
+    """A small uniform texture (flat-coloured materials: wire, posts)."""
+    return np.full((_FLAT_TEXTURE_PX, _FLAT_TEXTURE_PX, 3), rgb, np.uint8)
