@@ -2,7 +2,8 @@
 
 Usage::
 
-    python examples/orchard_gallery.py --out docs/img/orchard_frames.png [--seeds 0 1 2 ...]
+    python examples/orchard_gallery.py --out docs/figures/orchard_frames.png [--seeds 0 1 2 ...] \
+        [--variety docs/figures/orchard_variety.png --variety-seeds 0 1 ... 11]
 
 Each row is one tree seed (the architecture cycles through paper, tall spindle and UFO): the
 camera starts at the scan's home pose, climbs a few centimetres and sometimes turns about the
@@ -50,7 +51,8 @@ COLOURS = {
     "other": (0, 0, 0),
 }
 MAX_TURN_DEG = 15.0  # the camera turns at most this much about its own vertical while climbing
-MAX_DEPTH_M = 4.0  # depth picture: black at the camera, white at 4 m and beyond
+MAX_DEPTH_M = 4.0
+VARIETY_COLUMNS = 4  # depth picture: black at the camera, white at 4 m and beyond
 
 
 def colour_labels(labels: np.ndarray, n_secondaries: int) -> np.ndarray:
@@ -73,8 +75,9 @@ def climb(world: World, distance_m: float, yaw_rate: float = 0.0) -> None:
         world.apply_camera_twist(np.array([0.0, -CLIMB_SPEED_MPS, 0.0, 0.0, yaw_rate, 0.0]), STEP_S)
 
 
-def gallery_row(seed: int) -> np.ndarray:
-    """RGB | labels | depth | flow for the tree of ``seed``: (240, 1280, 3) uint8 RGB."""
+def gallery_row(seed: int, rgb_only: bool = False) -> np.ndarray:
+    """RGB | labels | depth | flow for the tree of ``seed``: (240, 1280, 3) uint8 RGB (or the
+    RGB frame alone)."""
     architecture = ARCHITECTURES[seed % len(ARCHITECTURES)]
     world = World(WorldConfig.preset("orchard", getattr(TreeConfig, architecture)()))
     try:
@@ -86,6 +89,8 @@ def gallery_row(seed: int) -> np.ndarray:
         T_before, before = world.T_world_camera, world.render()
         climb(world, PAIR_STEP_M)
         images, T_after = world.render(), world.T_world_camera
+        if rgb_only:
+            return images.rgb
         flow = ground_truth_flow(images.depth_m, T_after, T_before, world.config.camera)
         flow_picture = flow_vis.flow_to_color(np.nan_to_num(flow))
         depth = np.clip(np.nan_to_num(images.depth_m, posinf=MAX_DEPTH_M) / MAX_DEPTH_M, 0, 1)
@@ -99,14 +104,25 @@ def gallery_row(seed: int) -> np.ndarray:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("--out", type=Path, default=Path("docs/img/orchard_frames.png"))
+    parser.add_argument("--out", type=Path, default=Path("docs/figures/orchard_frames.png"))
     parser.add_argument("--seeds", type=int, nargs="+", default=list(range(6)))
+    parser.add_argument("--variety", type=Path, help="also write a grid of RGB frames here")
+    parser.add_argument("--variety-seeds", type=int, nargs="+", default=list(range(6, 18)))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     grid = np.vstack([gallery_row(seed) for seed in args.seeds])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     cv2.imwrite(str(args.out), grid[:, :, ::-1])
     print(f"wrote {args.out}")
+    if args.variety:
+        frames = [gallery_row(seed, rgb_only=True) for seed in args.variety_seeds]
+        frames += [np.zeros_like(frames[0])] * (-len(frames) % VARIETY_COLUMNS)
+        rows = [
+            np.hstack(frames[i : i + VARIETY_COLUMNS])
+            for i in range(0, len(frames), VARIETY_COLUMNS)
+        ]
+        cv2.imwrite(str(args.variety), np.vstack(rows)[:, :, ::-1])
+        print(f"wrote {args.variety}")
 
 
 if __name__ == "__main__":

@@ -57,17 +57,18 @@ class BranchScanEnv(gym.Env):
 
     ## Action space
 
+    By ``action_type`` (each registered id has one: :mod:`branch_gym.env.versions`):
+
     ============================  ==============================================================
-    ``BranchScan-v0``             ``Box(-1, 1, (1,), float32)``: target angle / theta_max
+    ``continuous``                ``Box(-1, 1, (1,), float32)``: target angle / theta_max
                                   (theta_max 45 deg). Finite values outside [-1, 1] are clipped;
                                   NaN, infinities and shapes other than (1,) or a scalar raise
                                   ``ValueError``.
-    ``BranchScanDiscrete-v0``     ``Discrete(5)``: target angle -45, -22.5, 0, 22.5 or 45 deg.
+    ``discrete``                  ``Discrete(5)``: target angle -45, -22.5, 0, 22.5 or 45 deg.
                                   Non-integer or out-of-range indices raise ``ValueError``.
-    ``BranchScan-v1``             as ``BranchScan-v0``: the policy picks any target angle.
-    ``BranchScanDiscrete-v1``     ``Discrete(6)``: 0 holds the current angle; k = 1..5 targets
-                                  -45, -22.5, 0, 22.5 or 45 deg (``action_type="discrete_hold"``).
-    ``BranchScanTrigger-v0``      ``Discrete(3)``: 0 holds the angle; 1 / 2 advance the paper's
+    ``discrete_hold``             ``Discrete(6)``: 0 holds the current angle; k = 1..5 targets
+                                  -45, -22.5, 0, 22.5 or 45 deg (the discrete v1 and v2 ids).
+    ``trigger``                   ``Discrete(3)``: 0 holds the angle; 1 / 2 advance the paper's
                                   cycle (+theta, 0, -theta, 0) by one move with theta 22.5 /
                                   45 deg (from a rotated view back to 0, from 0 to the side
                                   opposite the last rotation). Bad indices raise ``ValueError``.
@@ -156,8 +157,8 @@ class BranchScanEnv(gym.Env):
       ``info["failure"]``). The scan-time limit is part of the task, not a truncation: a scan
       that runs out of time ends there with the failure penalty, the branches above never found
       (the observation's ``SCAN_TIME`` tells the policy how much time is left). Treating it as a
-      truncation let a learner bootstrap the value of branches it would never reach (README,
-      "Learned rotation policies").
+      truncation let a learner bootstrap the value of branches it would never reach
+      (``docs/results/history.md``).
     - ``truncated``: the step limit of the registered ids (``max_episode_steps=200``,
       gymnasium's ``TimeLimit``; ``gymnasium.make(..., max_episode_steps=N)`` changes it).
       Stepping a terminated episode raises ``RuntimeError``: call ``reset()``.
@@ -183,10 +184,13 @@ class BranchScanEnv(gym.Env):
     =======================  =====================================================================
     ``render_mode``          None, "rgb_array" (camera image + mask, 2D curves, projected model),
                              "human" (pybullet GUI; needs a display, else ``RuntimeError``)
+    ``world``                "clean" (default) or "orchard" (sky, the row with true depth,
+                             trellis, dormant bark, camera model; ``docs/worlds.md``)
     ``tracker``              "lk" (default) or "oracle" (exact tracks from rendered depth, faster)
     ``segmenter``            "gt" (default), "noisy:mild" | "noisy:moderate" | "noisy:severe",
                              "learned" | "learned:PATH" (RGB network, branch_gym.sensing)
-    ``tree``                 "paper" (default), "cluttered", "hard" or a ``TreeConfig``
+    ``tree``                 "paper" (default), "cluttered", "hard", "tall_spindle", "ufo" or a
+                             ``TreeConfig``
     ``end_height_m``         scan end height (0.75 m); ``speed_mps``: scan speed (0.025 m/s)
     ``scan``                 a full :class:`branch_gym.scan.ScanConfig` (the shortcuts above
                              modify it)
@@ -211,8 +215,8 @@ class BranchScanEnv(gym.Env):
     ## Version History
 
     A change to the observation, the action or the reward registers a new version of the ids
-    (``branch_gym/__init__.py``); the old version stays registered while models trained on it
-    are shipped.
+    (a row of :data:`branch_gym.env.versions.ENV_VERSIONS`, its Version History in
+    ``docs/env.md``); the old version stays registered.
 
     - v0: the tables above: 12-entry vector (``SCAN_TIME`` last) and a 3-channel 60x80 image;
       continuous, discrete and trigger actions; the scan-time limit a terminal failure.

@@ -1,1 +1,4 @@
-"""The pybullet world: UR5e arm, procedural trees, eye-in-hand camera. Never imports recon."""
+"""The pybullet world: UR5e arm, procedural trees, eye-in-hand camera.
+
+Of ``recon`` it uses only pure helpers (field validation, tube frames); never the pipeline.
+"""

@@ -63,7 +63,7 @@ class DepthOracleTracker:
         seen = newest.intrinsics.in_image(query)
         depth = np.full(len(query), np.nan)
         depth[seen] = _sample_depth(newest.depth_m, query[seen], tolerance)
-        seen &= depth > 0.0  # NaN compares False
+        seen &= np.isfinite(depth) & (depth > 0.0)  # not NaN (unknown) nor inf (the sky)
         pixels[-1, seen] = query[seen]
         points = unproject_pixels(
             query[seen], depth[seen], newest.T_world_camera, newest.intrinsics

@@ -184,7 +184,7 @@ class RowTree:
         same_tree: True for an upright of the scanned (UFO) tree itself: labelled with it.
     """
 
-    branches: list[BranchGT]
+    branches: list[RowBranch]
     same_tree: bool = False
 
 
@@ -243,15 +243,38 @@ class OrchardRow:
     back_rows: list[BackRow] = field(default_factory=list)
 
 
+@dataclass(frozen=True)
+class RowBranch:
+    """One branch or twig of the row, for meshing (no ground-truth checks: thousands a scene).
+
+    Attributes:
+        points: (N, 3) centerline in metres, world frame, base -> tip.
+        radii: (N,) radius in metres.
+    """
+
+    points: np.ndarray
+    radii: np.ndarray
+
+
+_STEPS = {n: np.arange(n, dtype=float) for n in (5, 6, 8)}
+
+
+def _linspace(start: float, stop: float, count: int) -> np.ndarray:
+    """``np.linspace(start, stop, count)``, value for value, without its per-call overhead."""
+    values = _STEPS[count] * ((stop - start) / (count - 1)) + start
+    values[-1] = stop
+    return values
+
+
 def _polyline(start: np.ndarray, direction: np.ndarray, length_m: float, bend: np.ndarray,
               points: int = 5) -> np.ndarray:  # fmt: skip
     """(points, 3) a gently bending path: ``start + s d + s^2 bend``."""
-    s = np.linspace(0.0, length_m, points)[:, None]
+    s = _linspace(0.0, length_m, points)[:, None]
     return start + s * direction + s**2 * bend
 
 
-def _tapered(path: np.ndarray, base_radius_m: float, tip_radius_m: float) -> BranchGT:
-    return BranchGT(path, np.linspace(base_radius_m, max(tip_radius_m, 1e-4), len(path)))
+def _tapered(path: np.ndarray, base_radius_m: float, tip_radius_m: float) -> RowBranch:
+    return RowBranch(path, _linspace(base_radius_m, max(tip_radius_m, 1e-4), len(path)))
 
 
 def _unit(vector: np.ndarray) -> np.ndarray:
@@ -266,7 +289,7 @@ def _direction(yaw: float, elevation: float) -> np.ndarray:
 
 
 def _grow_twigs(
-    config: OrchardRowConfig, rng: np.random.Generator, branch: BranchGT, out: list[BranchGT]
+    config: OrchardRowConfig, rng: np.random.Generator, branch: RowBranch, out: list[RowBranch]
 ) -> None:
     """Upright one-year shoots along ``branch`` (appended to ``out``)."""
     for _ in range(int(rng.integers(config.twigs_per_branch_range[0],
@@ -290,7 +313,7 @@ def grow_row_tree(
     height_m: float,
     lateral_only: bool,
     max_height_m: float,
-) -> list[BranchGT]:
+) -> list[RowBranch]:
     """A trunk with branches and twigs, standing at ``base_xy`` (z from ``base_height_m``).
 
     ``lateral_only`` keeps branches short (UFO uprights carry short shoots, not scaffolds).
@@ -332,7 +355,7 @@ def _crossing_branch(
     neighbour_x_m: float,
     scanned: TreeGT,
     band_m: tuple[float, float],
-) -> list[BranchGT]:
+) -> list[RowBranch]:
     """A neighbour's branch reaching past the scanned tree on the camera's side, with twigs."""
     z = rng.uniform(*band_m)
     axis = scanned.primary.points[np.argmin(np.abs(scanned.primary.points[:, 2] - z))]
@@ -350,7 +373,7 @@ def _crossing_branch(
     path = (1 - t) ** 2 * start + 2 * (1 - t) * t * control + t**2 * end
     base_radius = rng.uniform(0.004, 0.008)
     branch = _tapered(path, base_radius, rng.uniform(*config.twig_radius_range_m))
-    twigs: list[BranchGT] = []
+    twigs: list[RowBranch] = []
     _grow_twigs(config, rng, branch, twigs)
     return [branch, *twigs]
 
@@ -389,9 +412,26 @@ class ScanView:
     half_fov_deg: tuple[float, float]
 
 
+def visible_branches(
+    branches: list[RowBranch], view: ScanView, config: OrchardRowConfig
+) -> list[RowBranch]:
+    """The branches some pose of ``view`` can see (:func:`potentially_visible`, in one pass)."""
+    if not branches:
+        return []
+    points = np.concatenate([b.points for b in branches])
+    owner = np.repeat(np.arange(len(branches)), [len(b.points) for b in branches])
+    seen = np.bincount(owner[_visible_points(points, view, config)], minlength=len(branches))
+    return [b for b, count in zip(branches, seen, strict=True) if count > 0]
+
+
 def potentially_visible(points: np.ndarray, view: ScanView, config: OrchardRowConfig) -> bool:
     """Whether some pose of ``view`` can see any of ``points`` (N, 3) (see
     ``OrchardRowConfig.cull_max_rotation_deg``)."""
+    return bool(_visible_points(points, view, config).any())
+
+
+def _visible_points(points: np.ndarray, view: ScanView, config: OrchardRowConfig) -> np.ndarray:
+    """(N,) bool: which of ``points`` (N, 3) some pose of ``view`` can see."""
     rotations = np.radians(np.linspace(-config.cull_max_rotation_deg,
                                        config.cull_max_rotation_deg, _CULL_ROTATIONS))  # fmt: skip
     look = np.stack([-np.sin(rotations), np.cos(rotations)], axis=1)  # (R, 2) view directions
@@ -409,7 +449,7 @@ def potentially_visible(points: np.ndarray, view: ScanView, config: OrchardRowCo
         & (z >= view.band_m[0] - half_v * along)
         & (z <= view.band_m[1] + half_v * along)
     )
-    return bool(inside.any())
+    return inside.any(axis=0)
 
 
 def generate_row(
@@ -460,7 +500,7 @@ def generate_row(
                 lateral_only=ufo, max_height_m=config.visible_height_m,
             )  # fmt: skip
             if view is not None:
-                branches = [b for b in branches if potentially_visible(b.points, view, config)]
+                branches = visible_branches(branches, view, config)
             row.trees.append(RowTree(branches, same_tree=ufo))
     if ufo:
         xs = [float(primary.points[0, 0]), *neighbour_x]

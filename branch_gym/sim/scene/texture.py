@@ -140,7 +140,9 @@ def band_limited_noise(
     """
     size = config.size_px
     spectrum = np.fft.rfft2(rng.standard_normal((size, size)))
-    noise = np.fft.irfft2(spectrum * _amplitude(config, coarse_weight), s=(size, size))
+    # The filter does not depend on the palette: cache it without (orchard bark draws palettes).
+    filter_key = replace(config, palette=BARK_PALETTE)
+    noise = np.fft.irfft2(spectrum * _amplitude(filter_key, coarse_weight), s=(size, size))
     std = float(noise.std())
     if std == 0.0:
         raise ValueError("no frequency of the texture falls in the feature band: enlarge size_px")

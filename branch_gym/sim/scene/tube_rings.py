@@ -2,7 +2,9 @@
 
 The polyline is checked and resampled densely, rings are kept where the centerline bends or the
 radius changes (Ramer-Douglas-Peucker within the chord and radius tolerances, split on long
-straight stretches), and each ring gets a tangent and a rotation-minimising normal (no twist).
+straight stretches), and each ring gets a tangent and a rotation-minimising normal (no twist:
+:func:`recon.geometry.frames.rotation_minimising_frames`, the one implementation, which the PLY
+meshes of reconstructed models use too).
 ``branch_gym/sim/scene/tree_mesh.py`` builds the triangle mesh on these rings.
 """
 
@@ -14,44 +16,21 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from recon.geometry.frames import rotation_minimising_frames
+
 if TYPE_CHECKING:
     from branch_gym.sim.scene.tree_mesh import TubeMeshConfig
 
 _DENSE_STEP_M = 0.001  # working resolution of the centerline (the ground truth is 1 mm dense)
 _MIN_SEGMENT_M = 1e-9  # shorter steps are duplicate points
-_SAME_TANGENT_SQUARED = 1e-18  # |t1 - reflected t0|^2 below this: no second reflection needed
 
-
-def rotation_minimising_frames(centres: np.ndarray, tangents: np.ndarray) -> np.ndarray:
-    """Reference normals along a curve by the double-reflection method (Wang et al. 2008).
-
-    Args:
-        centres: (R, 3) points on the curve in metres.
-        tangents: (R, 3) unit tangents at those points.
-
-    Returns:
-        (R, 3) unit normals perpendicular to the tangents, turning as little as possible; the third
-        axis of each right-handed frame is ``cross(tangent, normal)``.
-    """
-    helper = np.eye(3)[int(np.argmin(np.abs(tangents[0])))]
-    normals = np.empty_like(centres)
-    normals[0] = np.cross(tangents[0], helper)
-    normals[0] /= np.linalg.norm(normals[0])
-    for i in range(len(centres) - 1):
-        v1 = centres[i + 1] - centres[i]
-        c1 = float(v1 @ v1)
-        reflected_normal = normals[i] - (2.0 / c1) * float(v1 @ normals[i]) * v1
-        reflected_tangent = tangents[i] - (2.0 / c1) * float(v1 @ tangents[i]) * v1
-        v2 = tangents[i + 1] - reflected_tangent
-        c2 = float(v2 @ v2)
-        n = (
-            reflected_normal - (2.0 / c2) * float(v2 @ reflected_normal) * v2
-            if c2 > _SAME_TANGENT_SQUARED
-            else reflected_normal
-        )
-        n = n - float(n @ tangents[i + 1]) * tangents[i + 1]  # remove round-off drift
-        normals[i + 1] = n / np.linalg.norm(n)
-    return normals
+__all__ = [
+    "check_polyline",
+    "densify",
+    "ring_tangents",
+    "rotation_minimising_frames",
+    "select_rings",
+]
 
 
 def check_polyline(points: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

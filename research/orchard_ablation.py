@@ -1,0 +1,77 @@
+"""What makes the orchard hard: the orchard world with one of its parts taken away.
+
+Usage::
+
+    python research/orchard_ablation.py --variant no_crossing --trees 60 --workers 2 \\
+        --out results/orchard_no_crossing
+
+Variants (each the orchard world of ``WorldConfig.preset("orchard")`` with the paper's tree):
+
+* ``no_crossing``: no neighbour branch reaches across the scanned tree on the camera's side;
+* ``no_wires``: no trellis wire (nor clip);
+* ``no_row``: neither, and no neighbour trees at all (sky, ground, rows behind, posts remain).
+
+The policies are no rotation and the paper's 22.5 deg / 1.5; trials resume like ``eval.py``'s.
+The architectures need no script: ``eval.py --world orchard --tree tall_spindle`` (or ``ufo``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+from pathlib import Path
+
+from tqdm import tqdm
+
+from branch_gym.evaluation.config import EvalConfig
+from branch_gym.evaluation.pipeline import run_evaluation
+from branch_gym.evaluation.report import format_comparison
+from branch_gym.scan import ScanConfig
+from branch_gym.sim.world import WorldConfig
+
+POLICIES = ("none", "periodic:22.5:1.5")
+
+
+def variant_world(name: str) -> WorldConfig:
+    """The orchard world without the part ``name`` names (module docstring)."""
+    world = WorldConfig.preset("orchard")
+    row = world.orchard.row
+    if name == "no_crossing":
+        row = dataclasses.replace(row, crossing_branch_count_range=(0, 0))
+    elif name == "no_wires":
+        row = dataclasses.replace(row, wire_count_range=(0, 0))
+    elif name == "no_row":
+        row = dataclasses.replace(
+            row,
+            crossing_branch_count_range=(0, 0),
+            wire_count_range=(0, 0),
+            neighbours_per_side=0,
+            uprights_per_side=0,
+        )
+    else:
+        raise ValueError(f"unknown variant {name!r}: no_crossing, no_wires or no_row")
+    return dataclasses.replace(world, orchard=dataclasses.replace(world.orchard, row=row))
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
+    parser.add_argument("--variant", required=True, choices=("no_crossing", "no_wires", "no_row"))
+    parser.add_argument("--trees", type=int, default=60)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING)
+    scan = ScanConfig(world=variant_world(args.variant))
+    config = EvalConfig(POLICIES, args.trees, args.seed, args.workers, scan)
+    bar = tqdm(total=len(config.keys), unit="trial")
+    outcome = run_evaluation(
+        config, args.out, [], lambda total, saved: bar.update(saved), lambda key: bar.update(1)
+    )
+    bar.close()
+    print(format_comparison(outcome.summary))
+
+
+if __name__ == "__main__":
+    main()
