@@ -70,8 +70,10 @@ class OrchardRowConfig:
             scanned tree's view at its depth, where parallax cannot separate them.
         row_plane_spread_deg: Yaw spread of those branches about the row direction.
         crossing_branch_count_range: Neighbour branches reaching across the scanned tree on
-            the camera's side, within the scan band (our choice: 1-4; some twigs stand in
+            the camera's side, within the scan band (our choice: 0-3; some twigs stand in
             front of the scanned tree, task brief).
+        crossing_radius_range_m: Their radius where they leave the neighbour (thin wood, 4-10 mm
+            thick; they taper to twig size where they cross).
         crossing_gap_range_m: How far in front of the scanned tree's axis they cross (our
             choice: between the camera, 0.2 m away, and the bark).
         visible_height_m: Geometry above this height is dropped: a level camera at most 0.8 m
@@ -112,7 +114,8 @@ class OrchardRowConfig:
     twig_radius_range_m: tuple[float, float] = (0.0008, 0.003)
     trained_along_row_fraction: float = 0.7
     row_plane_spread_deg: float = 35.0
-    crossing_branch_count_range: tuple[int, int] = (1, 4)
+    crossing_branch_count_range: tuple[int, int] = (0, 3)
+    crossing_radius_range_m: tuple[float, float] = (0.002, 0.005)
     crossing_gap_range_m: tuple[float, float] = (0.03, 0.12)
     visible_height_m: float = 1.7
     cull_max_rotation_deg: float = 60.0
@@ -169,6 +172,7 @@ class OrchardRowConfig:
             "trunk_radius_range_m", "twig_radius_range_m", "wire_radius_range_m",
             "post_spacing_range_m", "post_radius_range_m", "post_height_range_m",
             "back_row_distance_range_m", "branch_length_range_m", "twig_length_range_m",
+            "crossing_radius_range_m",
         ):  # fmt: skip
             if getattr(self, name)[0] <= 0:
                 raise ValueError(f"OrchardRowConfig.{name} must be positive, got "
@@ -371,7 +375,7 @@ def _crossing_branch(
     mid = 0.5 * (start + end)
     control = crossing + (crossing - mid)  # a quadratic Bezier through ``crossing`` at t = 0.5
     path = (1 - t) ** 2 * start + 2 * (1 - t) * t * control + t**2 * end
-    base_radius = rng.uniform(0.004, 0.008)
+    base_radius = rng.uniform(*config.crossing_radius_range_m)
     branch = _tapered(path, base_radius, rng.uniform(*config.twig_radius_range_m))
     twigs: list[RowBranch] = []
     _grow_twigs(config, rng, branch, twigs)
