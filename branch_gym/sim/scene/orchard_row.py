@@ -118,7 +118,7 @@ class OrchardRowConfig:
     crossing_radius_range_m: tuple[float, float] = (0.002, 0.005)
     crossing_gap_range_m: tuple[float, float] = (0.03, 0.12)
     visible_height_m: float = 1.7
-    cull_max_rotation_deg: float = 60.0
+    cull_max_rotation_deg: float = 50.0
     cull_margin_deg: float = 5.0
     back_row_distance_range_m: tuple[float, float] = (3.0, 4.0)
     far_row_extra_range_m: tuple[float, float] = (3.0, 4.0)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import shutil
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -69,11 +69,11 @@ _ROW_SIDES = 4
 _POST_SIDES = 10
 _WIRE_SIDES = 4
 _THICK_M = 0.006  # branches thicker than this get 6 sides
-# Ring spacing of the row's branches (see _lod_mesh): a tenth of the distance to the nearest
-# camera pose, at least 7.5 mm; ring counts rounded up to a few buckets (one batch each).
-_RING_SPACING_PER_M = 0.1
-_MIN_RING_SPACING_M = 0.0075
-_RING_BUCKETS = (3, 5, 9, 17, 33, 65, 129)
+# Ring spacing of the row's branches (see _lod_mesh): a fifth of the distance to the nearest
+# camera pose (a piece spans at most ~80 px), at least 1 cm; ring counts rounded up to a few buckets (one batch each).
+_RING_SPACING_PER_M = 0.3
+_MIN_RING_SPACING_M = 0.01
+_RING_BUCKETS = (3, 5, 9, 17, 33, 65)
 _FAR_M = 0.5  # twigs farther than this from every camera pose get 3 sides
 _FAR_SIDES = 3
 _LOD_ROTATION_DEG = 45.0  # camera poses for the level of detail: the paper's largest rotation
@@ -170,7 +170,11 @@ class OrchardScene:
         self.config = config
         self._view = view
         bark = orchard_bark(rng, scene_config.bark)
-        self.tree_scene = TreeScene(bullet, tree, rng, scene_config, bark_image=bark)
+        # The orchard paints its own sky, ground and rows: the clean world's backdrop is off.
+        tree_config = replace(
+            scene_config, background=replace(scene_config.background, enabled=False)
+        )
+        self.tree_scene = TreeScene(bullet, tree, rng, tree_config, bark_image=bark)
         self.tree_body_ids = self.tree_scene.tree_body_ids
         self.label_of = dict(self.tree_scene.label_of)
         strips = row_strips(config.row)
