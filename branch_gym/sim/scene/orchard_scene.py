@@ -69,8 +69,9 @@ _ROW_SIDES = 4
 _POST_SIDES = 10
 _WIRE_SIDES = 4
 _THICK_M = 0.006  # branches thicker than this get 6 sides
-# Ring spacing of the row's branches (see _lod_mesh): a fifth of the distance to the nearest
-# camera pose (a piece spans at most ~80 px), at least 1 cm; ring counts rounded up to a few buckets (one batch each).
+# Ring spacing of the row's branches (see _lod_mesh): 0.3 times the distance to the nearest
+# camera pose (a piece spans at most ~125 px), at least 1 cm; ring counts rounded up to a few
+# buckets (one batch each).
 _RING_SPACING_PER_M = 0.3
 _MIN_RING_SPACING_M = 0.01
 _RING_BUCKETS = (3, 5, 9, 17, 33, 65)
