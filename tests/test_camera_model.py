@@ -184,6 +184,11 @@ def test_expose_checks_shape_and_leaves_the_radiance_alone() -> None:
     camera = CameraModel(CameraConfig.realistic(), np.random.default_rng(0))
     with pytest.raises(ValueError, match="radiance must be"):
         camera.expose(np.zeros((HEIGHT, WIDTH), np.float32), None, np.random.default_rng(0))
+    broken = _scene()
+    broken[8, 8] = np.nan  # on the metering grid
+    with pytest.raises(ValueError, match="finite"):
+        camera.expose(broken, None, np.random.default_rng(0))
+    assert camera.exposure_gain is None  # the state is not poisoned
     radiance = _scene()
     before = radiance.copy()
     first = camera.expose(radiance, (3.0, 0.0), np.random.default_rng(1))
@@ -237,6 +242,7 @@ def test_auto_exposure_off_uses_the_manual_gain() -> None:
         camera = CameraModel(config, np.random.default_rng(0))
         image = camera.expose(_uniform(level), None, np.random.default_rng(1))
         assert _linear(image).mean() == pytest.approx(level * MANUAL_EXPOSURE_GAIN, rel=0.02)
+        assert camera.exposure_gain == pytest.approx(MANUAL_EXPOSURE_GAIN)
 
 
 def test_auto_exposure_gain_is_clipped_to_its_range() -> None:

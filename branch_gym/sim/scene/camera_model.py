@@ -29,11 +29,15 @@ through a 256-entry table of standard-normal quantiles (rescaled to unit varianc
 +-2.9 sigma) with ``cv2.LUT``: ~0.2 ms. At the default noise levels (sigma ~2-4 DN after
 encoding) the 8-bit output cannot tell the two apart.
 
-Speed (measured with ``timeit`` on one core of the 2.8 GHz Xeon dev machine, 320x240,
-``CameraConfig.realistic()``, a smooth scene): ~1.7 ms a frame without motion blur (~1.1 ms of it
-without JPEG; JPEG encode + decode alone ~0.6 ms), ~1.9 ms with a 3 px blur. All full-frame arrays
-are float32; only the 40x30 metering grid uses small float64 temporaries. Motion blur cost grows
-with the kernel's area (``cv2.filter2D`` switches to a DFT above ~11x11: ~12 ms at 21x21).
+Speed, 320x240, ``CameraConfig.realistic()``, one thread (``timeit``, process time, best of
+9 x 200 frames, on the shared 2-core 2.8 GHz Xeon dev machine while other jobs kept its load
+average at 5-8): 1.4-1.8 ms a frame without JPEG, 2.3-3.0 ms with JPEG at quality 70-83, 3.1-3.5
+ms at 95; a 3 px motion blur adds ~0.1-0.3 ms. At light load (load average < 1) the steps measured
+about half that: ~0.9 ms before JPEG, JPEG encode + decode 0.5 ms (q78) to 0.95 ms (q95), so
+~1.4-1.9 ms a frame. JPEG of a noisy frame is the largest single cost. All full-frame arrays are
+float32 work buffers reused between frames (fresh ones doubled the time); only the 40x30
+metering grid uses small float64 temporaries. Motion blur cost grows with the kernel's area
+(``cv2.filter2D`` switches to a DFT above ~11x11: ~12 ms at 21x21).
 """
 
 from __future__ import annotations
@@ -362,6 +366,8 @@ def metered_exposure_gain(
 class CameraModel:
     """One camera for one scan: per-scan draws, auto-exposure state, and :meth:`expose`.
 
+    Not thread-safe: it keeps float32 work buffers between frames (each returned image is new).
+
     Attributes:
         config: The photometric model.
         white_balance_error: (3,) float32 per-scan multiplicative R, G, B gain errors (G = 1).
@@ -513,6 +519,7 @@ class CameraModel:
         """
         config = self.config
         if not config.auto_exposure:
+            self._log_gain = math.log(MANUAL_EXPOSURE_GAIN)
             return MANUAL_EXPOSURE_GAIN
         lo, hi = config.exposure_gain_range
         metered = metered_exposure_gain(
