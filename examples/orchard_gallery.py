@@ -2,8 +2,8 @@
 
 Usage::
 
-    python examples/orchard_gallery.py --out docs/figures/orchard_frames.png [--seeds 0 1 2 ...] \
-        [--variety docs/figures/orchard_variety.png --variety-seeds 0 1 ... 11]
+    python examples/orchard_gallery.py --out docs/figures/orchard_frames.jpg [--seeds 0 1 2 ...] \
+        [--variety docs/figures/orchard_variety.jpg --variety-seeds 0 1 ... 11]
 
 Each row is one tree seed (the architecture cycles through paper, tall spindle and UFO): the
 camera starts at the scan's home pose, climbs a few centimetres and sometimes turns about the
@@ -51,8 +51,9 @@ COLOURS = {
     "other": (0, 0, 0),
 }
 MAX_TURN_DEG = 15.0  # the camera turns at most this much about its own vertical while climbing
-MAX_DEPTH_M = 4.0
-VARIETY_COLUMNS = 4  # depth picture: black at the camera, white at 4 m and beyond
+MAX_DEPTH_M = 4.0  # depth picture: black at the camera, white at 4 m and beyond
+VARIETY_COLUMNS = 4
+JPEG_QUALITY = 90  # the pictures are documentation: JPEG keeps the repository small
 
 
 def colour_labels(labels: np.ndarray, n_secondaries: int) -> np.ndarray:
@@ -104,7 +105,7 @@ def gallery_row(seed: int, rgb_only: bool = False) -> np.ndarray:
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("--out", type=Path, default=Path("docs/figures/orchard_frames.png"))
+    parser.add_argument("--out", type=Path, default=Path("docs/figures/orchard_frames.jpg"))
     parser.add_argument("--seeds", type=int, nargs="+", default=list(range(6)))
     parser.add_argument("--variety", type=Path, help="also write a grid of RGB frames here")
     parser.add_argument("--variety-seeds", type=int, nargs="+", default=list(range(6, 18)))
@@ -112,7 +113,7 @@ def main(argv: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.WARNING)
     grid = np.vstack([gallery_row(seed) for seed in args.seeds])
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(args.out), grid[:, :, ::-1])
+    cv2.imwrite(str(args.out), grid[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
     print(f"wrote {args.out}")
     if args.variety:
         frames = [gallery_row(seed, rgb_only=True) for seed in args.variety_seeds]
@@ -121,7 +122,9 @@ def main(argv: list[str] | None = None) -> None:
             np.hstack(frames[i : i + VARIETY_COLUMNS])
             for i in range(0, len(frames), VARIETY_COLUMNS)
         ]
-        cv2.imwrite(str(args.variety), np.vstack(rows)[:, :, ::-1])
+        cv2.imwrite(
+            str(args.variety), np.vstack(rows)[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY]
+        )
         print(f"wrote {args.variety}")
 
 
