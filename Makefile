@@ -3,8 +3,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
-# Keep torch's BLAS to one thread per process: the scans are small and we run on 2 cores.
-export OMP_NUM_THREADS ?= 1
+# Threads: `import branch_gym` pins one BLAS thread per process (branch_gym/__init__.py).
 
 .PHONY: setup demo test test-fast bench lint format clean
 

@@ -1,201 +1,28 @@
-"""Evaluate rotation policies on simulated trees and compare with the paper's Table I.
+"""Evaluate rotation policies: a thin wrapper of :mod:`branch_gym.evaluation.cli`.
 
-Usage::
-
-    python eval.py --policies none periodic:22.5:1.5 periodic:45:1.5 periodic:22.5:2.5 \\
-        periodic:45:2.5 --trees 60 --seed 0 --workers 2 --out results/NAME \\
-        [--world clean|orchard] [--tree paper|tall_spindle|ufo|...] \\
-        [--tracker lk|oracle] [--segmenter gt|noisy:mild|learned|...] [--speed 0.025] \\
-        [--plot-trees 0 1 2] [--end-height 0.75] [--backend pool|ray] [--address ADDR] \\
-        [--record DIR]
-
-Every policy scans the same trees (seeds SEED .. SEED+TREES-1). Each finished trial is saved at
-once under OUT/trials/, and re-running the same command resumes: saved trials are loaded, not
-re-run. OUT then holds summary.json, table.md, trials.csv, missed_vs_scan_time.png and one
-tree_SEED.png per plotted tree. See branch_gym/evaluation/ for the definitions. ``--record DIR``
-writes each trial run as a scan folder that ``python -m recon.replay`` reads (docs/replay.md).
-
-``--backend ray`` runs the trials as Ray tasks (``pip install .[ray]``): on a private local Ray
-instance of --workers CPUs, or on the cluster at --address; the results are the same as the
-default process pool's (docs/integrations/ray.md).
+The installed command is ``branch-gym-eval``; ``python eval.py --help`` lists the options
+(``--world``, ``--tree``, ``--tracker``, ``--segmenter``, ``--record``, ``--backend ray``, ...).
 """
 
-from __future__ import annotations
-
-import os
-
-# One BLAS thread per process, before numpy loads: scans are small and workers run side by side
-# (workers inherit it).
-os.environ.setdefault("OMP_NUM_THREADS", "1")
-
-import argparse
-import logging
 import sys
-import traceback
-from pathlib import Path
 
-from tqdm import tqdm
+from branch_gym.evaluation.cli import (
+    ERROR_LOG,
+    EXIT_INTERRUPTED,
+    EXIT_TRIAL_FAILED,
+    EXIT_USAGE,
+    build_parser,
+    main,
+)
 
-from branch_gym.env.config import TREE_PRESETS, tree_config
-from branch_gym.evaluation.config import EvalConfig, TrialError
-from branch_gym.evaluation.pipeline import run_evaluation
-from branch_gym.evaluation.ray_backend import RayUnavailableError, import_ray
-from branch_gym.evaluation.report import failure_reasons, format_comparison
-from branch_gym.evaluation.runner import ConfigMismatchError
-from branch_gym.scan import ScanConfig
-from branch_gym.sim.world import WORLDS, WorldConfig
-
-EXIT_USAGE = 2
-EXIT_TRIAL_FAILED = 1
-ERROR_LOG = "error.log"  # under --out: the traceback of a trial that raised
-EXIT_INTERRUPTED = 130
-
-
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n", 1)[0],
-        epilog="Trials already saved in --out (same policy, seed and scan configuration) are "
-        "loaded instead of re-run; --out holding trials of another configuration is refused.",
-    )
-    parser.add_argument(
-        "--policies",
-        nargs="+",
-        required=True,
-        metavar="SPEC",
-        help="rotation policies: none | periodic:ANGLE_DEG:FREQ (table columns, in this order)",
-    )
-    parser.add_argument("--trees", type=int, default=60, help="trees per policy (default 60)")
-    parser.add_argument("--seed", type=int, default=0, help="first tree seed (default 0)")
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=1,
-        help="trials run at once: worker processes, or Ray tasks in flight (default 1)",
-    )
-    parser.add_argument(
-        "--backend",
-        choices=("pool", "ray"),
-        default="pool",
-        help="pool: this process or a process pool (default); ray: Ray tasks (pip install .[ray])",
-    )
-    parser.add_argument(
-        "--address",
-        metavar="ADDR",
-        help="Ray cluster address (auto | HOST:PORT | ray://HOST:10001); with --backend ray; "
-        "default: a private local Ray instance",
-    )
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument(
-        "--world",
-        choices=WORLDS,
-        default="clean",
-        help="clean (default): the paper's world; orchard: sky, row, trellis, camera model",
-    )
-    parser.add_argument(
-        "--tree", choices=TREE_PRESETS, default="paper", help="tree distribution (default paper)"
-    )
-    parser.add_argument("--tracker", choices=("lk", "oracle"), help="point tracker")
-    parser.add_argument(
-        "--segmenter", help="segmenter spec: gt | noisy:mild|moderate|severe | learned[:PATH]"
-    )
-    parser.add_argument("--speed", type=float, metavar="MPS", help="camera speed (m/s)")
-    parser.add_argument(
-        "--end-height", type=float, metavar="M", help="scan end height (m); lower for quick runs"
-    )
-    parser.add_argument(
-        "--record",
-        type=Path,
-        metavar="DIR",
-        help="also record every trial run as a scan folder DIR/POLICY/seed_SEED "
-        "(replay with python -m recon.replay; docs/replay.md)",
-    )
-    parser.add_argument(
-        "--plot-trees",
-        type=int,
-        nargs="*",
-        metavar="SEED",
-        help="tree seeds to draw, one figure each (default: the first two seeds)",
-    )
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    changes = {
-        "tracker": args.tracker,
-        "segmenter": args.segmenter,
-        "speed_mps": args.speed,
-        "end_height_m": args.end_height,
-    }
-    try:
-        world = WorldConfig.preset(args.world, tree=tree_config(args.tree))
-        scan = ScanConfig(world=world).replace(
-            **{k: v for k, v in changes.items() if v is not None}
-        )
-        config = EvalConfig(
-            tuple(args.policies),
-            args.trees,
-            args.seed,
-            args.workers,
-            scan,
-            backend=args.backend,
-            address=args.address,
-            record_dir=args.record,
-        )
-    except (ValueError, TypeError) as exc:
-        parser.error(str(exc))
-    if config.backend == "ray":
-        try:
-            import_ray()  # before any output is written
-        except RayUnavailableError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return EXIT_USAGE
-
-    bar = None
-
-    def on_start(total: int, saved: int) -> None:
-        nonlocal bar
-        bar = tqdm(total=total, initial=saved, unit="trial", desc="trials", smoothing=0.0)
-
-    def on_done(key: tuple[str, int]) -> None:
-        bar.set_postfix_str(f"{key[0]} seed {key[1]}", refresh=False)
-        bar.update(1)
-
-    try:
-        outcome = run_evaluation(config, args.out, args.plot_trees, on_start, on_done)
-    except (ConfigMismatchError, ValueError, ConnectionError) as exc:  # Connection: Ray address
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except TrialError as exc:  # one line naming the trial and the cause; the traceback in a file
-        if bar is not None:
-            bar.close()  # the message goes on a line of its own
-        log = args.out / ERROR_LOG
-        log.parent.mkdir(parents=True, exist_ok=True)
-        log.write_text("".join(traceback.format_exception(exc)))
-        print(f"error: {exc} (traceback in {log})", file=sys.stderr)
-        return EXIT_TRIAL_FAILED
-    except KeyboardInterrupt:
-        print(
-            f"\ninterrupted: finished trials are saved in {args.out / 'trials'}; "
-            "run the same command again to resume",
-            file=sys.stderr,
-        )
-        return EXIT_INTERRUPTED
-    finally:
-        if bar is not None:
-            bar.close()
-
-    loaded = len(outcome.records) - len(outcome.computed)
-    print(f"\n{len(outcome.computed)} trials run, {loaded} loaded from {args.out / 'trials'}")
-    print("\nOurs next to the paper's Table I (simulated, 60 trials per column):\n")
-    print(format_comparison(outcome.summary))
-    print(f"\nFailure reasons: {failure_reasons(outcome.records, config.policies)}")
-    print("\nwrote " + ", ".join(str(path) for path in outcome.files))
-    return 0
-
+__all__ = [
+    "ERROR_LOG",
+    "EXIT_INTERRUPTED",
+    "EXIT_TRIAL_FAILED",
+    "EXIT_USAGE",
+    "build_parser",
+    "main",
+]
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -38,6 +38,11 @@ _NO_PHASE = -1  # before the first rotation of an episode
 def parse_periodic_spec(spec: str) -> tuple[float, float] | None:
     """(angle_deg, frequency) of a ``periodic:ANGLE:FREQ`` spec; None for another kind of spec.
 
+    >>> parse_periodic_spec("periodic:22.5:1.5")
+    (22.5, 1.5)
+    >>> parse_periodic_spec("none") is None
+    True
+
     Raises:
         ValueError: a malformed ``periodic`` spec or bad parameters (naming the valid form).
     """

@@ -6,9 +6,9 @@ spec                       agent
 ``none``                   :class:`agents.baselines.NoRotationAgent` (paper Table I, 0 / 0)
 ``periodic:ANGLE:FREQ``    :class:`agents.baselines.PeriodicAgent`, the paper's controller
 ``disagreement[:ANGLE]``   :class:`agents.disagreement.DisagreementAgent`
-``ppo:PATH[@SECONDS]``     a trained SB3 PPO model (:func:`agents.ppo.load_policy`); a v1
-                           model conditioned on the price of scan time acts at SECONDS per
-                           found branch
+``ppo:PATH[@SECONDS]``     a trained SB3 PPO model (:func:`agents.ppo.load_policy`; PATH may
+                           name a shipped model, ``ppo:ppo_dagger_v2``); a model conditioned on
+                           the price of scan time (v1, v2) acts at SECONDS per found branch
 ``privileged``             :class:`agents.privileged.PrivilegedAgent`: reads the ground truth
                            (simulation only), the upper bound of a policy
 =========================  =====================================================================
@@ -21,19 +21,11 @@ from typing import Any
 from agents.baselines import NO_ROTATION_SPEC, NoRotationAgent, PeriodicAgent, parse_periodic_spec
 from agents.disagreement import SPEC_KIND as DISAGREEMENT_KIND
 from agents.disagreement import DisagreementAgent, parse_disagreement_spec
-from agents.ppo import (
-    PPO_SPEC_PREFIX,
-    action_type_of,
-    check_ppo_spec,
-    load_model,
-    load_policy,
-    observed_coverage,
-    split_price,
-)
+from agents.ppo import PPO_SPEC_PREFIX, check_ppo_spec, load_policy, spec_env_id, split_price
 from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
 from agents.privileged import PrivilegedAgent
 from agents.protocol import Agent
-from branch_gym import V1_BRANCH_VALUE_S
+from branch_gym.env.versions import env_version
 
 SPEC_FORMS = (
     "'none', 'periodic:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]', 'privileged' or 'ppo:PATH'"
@@ -62,20 +54,15 @@ def spec_env_kwargs(spec: str) -> dict[str, Any]:
     """The ``BranchScanEnv`` settings an agent of ``spec`` acts in.
 
     The baselines decide target angles and encode them for any action type; the continuous v0
-    env represents every angle exactly, so they act there. A ``ppo:`` model acts in the env of
-    its spaces: its action type, and the coverage memory (v1 or v2) and price when it observes them.
+    env represents every angle exactly, so they act there. A ``ppo:`` model acts in the env it
+    was trained on: the row of its recorded env id (:mod:`branch_gym.env.versions`).
 
     Raises:
         FileNotFoundError, agents.ppo.ModelFileError: a ``ppo:`` model that cannot be loaded.
     """
     if not spec.startswith(PPO_SPEC_PREFIX):
         return {"action_type": "continuous"}
-    model = load_model(check_ppo_spec(spec))
-    kwargs: dict[str, Any] = {"action_type": action_type_of(model.action_space)}
-    coverage = observed_coverage(model.observation_space)
-    if coverage is not None:
-        kwargs.update(coverage=coverage, branch_value_s=V1_BRANCH_VALUE_S)
-    return kwargs
+    return env_version(spec_env_id(spec)).env_kwargs()
 
 
 def spec_reset_options(spec: str) -> dict[str, Any] | None:

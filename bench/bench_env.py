@@ -26,7 +26,7 @@ the same core:
   over minutes (on one of ours the separate-floor LK ratio of the same code read 1.59 and 1.35 in
   two runs ~10 minutes apart): the in-step floor shares the steps' moment.
 * ``env_steps_per_s_mix``: the training mode with the fixed action mix of
-  :mod:`branch_gym.training.action_mix` (one rotation every 10 steps) on ``MIX_SEEDS``
+  :mod:`bench.action_mix` (one rotation every 10 steps) on ``MIX_SEEDS``
   (``train_over_env_fast_mix_seeds``; ``train_over_env_fast`` compares the training rate with
   the single-core rate of the training run's own steps, bench_train).
 """
@@ -44,8 +44,8 @@ import numpy as np
 import branch_gym
 from agents.baselines import NoRotationAgent
 from bench import bench_recon, bench_sim
+from bench.action_mix import FixedActionMix
 from branch_gym.sim.world import World
-from branch_gym.training.action_mix import FixedActionMix
 
 SEEDS = (0, 1, 2)
 # The mix's single-core rate is the denominator of a ratio whose numerator plays ~40 training

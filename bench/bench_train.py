@@ -9,12 +9,12 @@ the per-step cost of the update (n_epochs passes over each sample) does not depe
 Rollouts (env steps of a fresh policy, whose exploration rotates at almost every step), the
 policy's forward passes and the update all count; process start-up and env creation do not.
 
-``train_steps_per_s_trigger_recipe`` is the recipe of the shipped model (README): the trigger env,
+``train_steps_per_s_trigger_recipe`` is a PPO recipe (docs/results/history.md): the trigger env,
 the oracle's fast mode and a policy that starts holding (``first_action_logit_init`` 3), with
 rollouts of ``RECIPE_N_STEPS`` per env.
 
 ``train_steps_per_s_fast``: the training mode (oracle tracker, pose-only tracking frames) with the
-fixed action mix of :mod:`branch_gym.training.action_mix` (one rotation every 10 steps, whatever
+fixed action mix of :mod:`bench.action_mix` (one rotation every 10 steps, whatever
 the policy sends), the default rollout length (``PPOConfig.n_steps``, 256 per env),
 ``FAST_ROLLOUTS`` rollouts and updates, and the rollouts collected in the env processes
 (``TrainConfig.worker_rollouts``); the learner's torch threads follow ``train.py``
@@ -48,8 +48,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from bench.action_mix import FixedActionMix
 from bench.bench_env import one_core
-from branch_gym.training.action_mix import FixedActionMix
 from branch_gym.training.callbacks import TorchThreadsCallback
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.envs import make_env, make_train_env

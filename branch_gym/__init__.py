@@ -1,65 +1,49 @@
-"""branch_gym: simulator and learning testbed for active branch scanning in orchard robotics."""
+"""branch_gym: simulator and learning testbed for active branch scanning in orchard robotics.
+
+Importing it pins the BLAS / OpenMP threads of this process (and of the worker processes it
+starts, which inherit the variable) to :data:`BLAS_THREADS`, unless ``OMP_NUM_THREADS`` is set
+already, and registers the environment ids of :mod:`branch_gym.env.versions`.
+"""
 
 from __future__ import annotations
 
-from gymnasium.envs.registration import register, registry
+import os
 
-from branch_gym.env.coverage import CoverageConfig  # pure numpy: `import branch_gym` stays light
+# The one place the threads are pinned: before numpy / torch load below (our choice: the scans
+# are small and the workers run side by side on 2 cores; more threads only add overhead).
+BLAS_THREADS = 1
+os.environ.setdefault("OMP_NUM_THREADS", str(BLAS_THREADS))
+
+# The table is pure (gymnasium and numpy): `import branch_gym` stays light.
+from branch_gym.env.versions import (  # noqa: E402
+    ENV_IDS,
+    MAX_EPISODE_STEPS,
+    V1_BRANCH_VALUE_S,
+    register_envs,
+)
 
 ENV_ID = "BranchScan-v0"  # continuous target angle, Dict observation
 DISCRETE_ENV_ID = "BranchScanDiscrete-v0"  # one of a few fixed angles, Dict observation
 FLAT_ENV_ID = "BranchScanFlat-v0"  # continuous target angle, flat float32 observation
 TRIGGER_ENV_ID = "BranchScanTrigger-v0"  # hold, or advance the paper's rotation cycle
-# v1: a view-coverage memory and the price of scan time in the observation, the price drawn per
-# episode; actions choose the target angle freely (continuous) or hold / pick one (discrete).
-ENV_ID_V1 = "BranchScan-v1"
+ENV_ID_V1 = "BranchScan-v1"  # + the coverage memory and the price of scan time
 DISCRETE_ENV_ID_V1 = "BranchScanDiscrete-v1"
-# v2: v1 plus the coverage memory's IN_FRONT channel (points found in front of the primary).
-ENV_ID_V2 = "BranchScan-v2"
+ENV_ID_V2 = "BranchScan-v2"  # + the coverage memory's IN_FRONT channel
 DISCRETE_ENV_ID_V2 = "BranchScanDiscrete-v2"
-ENV_IDS = (
-    ENV_ID, DISCRETE_ENV_ID, FLAT_ENV_ID, TRIGGER_ENV_ID, ENV_ID_V1, DISCRETE_ENV_ID_V1,
-    ENV_ID_V2, DISCRETE_ENV_ID_V2,
-)  # fmt: skip
-# Seconds of scan time a found branch is worth, drawn log-uniformly per v1 episode (our choice:
-# around v0's implicit 100 s, from rotating almost never to rotating at every chance).
-V1_BRANCH_VALUE_S = (25.0, 400.0)
-# Step limit of the registered ids (gymnasium's TimeLimit; our choice: generous, a full scan at
-# the paper's settings takes ~48 steps, ~100 with frequent rotations).
-MAX_EPISODE_STEPS = 200
-_ENTRY_POINT = "branch_gym.env.scan_env:BranchScanEnv"  # a string: importing stays light
 
+__all__ = [
+    "BLAS_THREADS",
+    "DISCRETE_ENV_ID",
+    "DISCRETE_ENV_ID_V1",
+    "DISCRETE_ENV_ID_V2",
+    "ENV_ID",
+    "ENV_IDS",
+    "ENV_ID_V1",
+    "ENV_ID_V2",
+    "FLAT_ENV_ID",
+    "MAX_EPISODE_STEPS",
+    "TRIGGER_ENV_ID",
+    "V1_BRANCH_VALUE_S",
+]
 
-def _v1_kwargs() -> dict:
-    """The observation and reward settings the v1 ids add to v0."""
-    return {"coverage": CoverageConfig(), "branch_value_s": V1_BRANCH_VALUE_S}
-
-
-def _v2_kwargs() -> dict:
-    """The v1 settings with the coverage memory's ``IN_FRONT`` channel."""
-    return {**_v1_kwargs(), "coverage": CoverageConfig(in_front_channel=True)}
-
-
-def _register_envs() -> None:
-    """Register the environment ids (idempotent: re-imports and reloads are fine)."""
-    kwargs = {
-        ENV_ID: {"action_type": "continuous"},
-        DISCRETE_ENV_ID: {"action_type": "discrete"},
-        FLAT_ENV_ID: {"action_type": "continuous", "flatten": True},
-        TRIGGER_ENV_ID: {"action_type": "trigger"},
-        ENV_ID_V1: {"action_type": "continuous", **_v1_kwargs()},
-        DISCRETE_ENV_ID_V1: {"action_type": "discrete_hold", **_v1_kwargs()},
-        ENV_ID_V2: {"action_type": "continuous", **_v2_kwargs()},
-        DISCRETE_ENV_ID_V2: {"action_type": "discrete_hold", **_v2_kwargs()},
-    }
-    for env_id, env_kwargs in kwargs.items():
-        if env_id not in registry:
-            register(
-                id=env_id,
-                entry_point=_ENTRY_POINT,
-                max_episode_steps=MAX_EPISODE_STEPS,
-                kwargs=env_kwargs,
-            )
-
-
-_register_envs()
+register_envs()

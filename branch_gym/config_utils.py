@@ -1,21 +1,34 @@
 """Small helpers shared by the configuration modules (env, training, evaluation).
 
-:func:`is_number` is the one test of "a real number" the config checks use;
-:func:`flatten_dict` turns a nested config dict into dotted keys for "what changed" messages.
+:func:`is_number` (:mod:`recon.validation`'s) is the one test of "a real number" the config
+checks use;
+:func:`flatten_dict` turns a nested config dict into dotted keys for "what changed" messages;
+:func:`read_config_file` reads a recipe (``configs/*.json``) that a command takes with
+``--config``: the fields of its config dataclass that differ from their defaults, and a
+``description``.
 """
 
 from __future__ import annotations
 
-import numbers
+import json
 from collections.abc import Mapping
+from dataclasses import fields
+from pathlib import Path
 from typing import Any
 
-__all__ = ["flatten_dict", "is_number"]
+from recon.validation import is_number
 
+__all__ = [
+    "DESCRIPTION_KEY",
+    "check_keys",
+    "flatten_dict",
+    "is_number",
+    "load_config",
+    "read_config_file",
+]
 
-def is_number(value: object) -> bool:
-    """A real number: int, float or numpy scalar, but not a bool."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+# A recipe's words for people: what it makes and how it was chosen (not a config field).
+DESCRIPTION_KEY = "description"
 
 
 def flatten_dict(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
@@ -27,6 +40,9 @@ def flatten_dict(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
     Returns:
         A new dict, in the order of a depth-first walk of ``data``.
+
+    >>> flatten_dict({"a": 1, "ppo": {"gamma": 0.99, "net": {"width": 64}}})
+    {'a': 1, 'ppo.gamma': 0.99, 'ppo.net.width': 64}
     """
     flat: dict[str, Any] = {}
     for key, value in data.items():
@@ -35,3 +51,47 @@ def flatten_dict(data: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             flat[f"{prefix}{key}"] = value
     return flat
+
+
+def read_config_file(path: str | Path) -> dict[str, Any]:
+    """The config fields of a recipe file (a JSON object), without its ``description``.
+
+    Raises:
+        FileNotFoundError: no such file (named).
+        ValueError: not a JSON object (named).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config file {path} does not exist")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"config file {path} is not valid JSON: {exc}") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"config file {path} must hold a JSON object")
+    data.pop(DESCRIPTION_KEY, None)
+    return data
+
+
+def check_keys(cls: type, data: Mapping[str, Any]) -> None:
+    """Raise unless every key of ``data`` is a field of the dataclass ``cls``.
+
+    Raises:
+        ValueError: the unknown keys, named with the class and its fields.
+    """
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise ValueError(
+            f"unknown {cls.__name__} key(s) {unknown}: expected some of {sorted(names)}"
+        )
+
+
+def load_config(cls: type, path: str | Path | None) -> Any:
+    """A config dataclass from a recipe file (its ``from_dict``), or its defaults for None.
+
+    Raises:
+        FileNotFoundError: no such file (named).
+        ValueError: a bad file or value (named).
+    """
+    return cls() if path is None else cls.from_dict(read_config_file(path))

@@ -2,23 +2,20 @@
 
 Runs the paper's no-rotation baseline, two of its periodic settings, the privileged bound (it
 reads the ground truth) and the shipped learned front, two decision thresholds of one DAgger
-student of the privileged policy on the v2 observation (``models/ppo_dagger_v2.zip`` and
-``models/ppo_dagger_v2_shift1.zip``, its "hold" logit raised by 1: fewer rotations, a shorter
-scan) on a few trees with real image tracking (Lucas-Kanade on the rendered bark) and clean
-masks, prints the table next to the paper's Table I, and writes ``results/demo/`` (table,
-summary, per-trial CSV, missed-vs-time plot, 3D reconstructions over the ground truth, a
-camera/scene snapshot, and a video of the shipped learned policy scanning the first tree).
+student of the privileged policy on the v2 observation (the shipped ``ppo_dagger_v2`` and
+``ppo_dagger_v2_shift1``, its "hold" logit raised by 1: fewer rotations, a shorter scan; their
+cards are in ``agents/models/``) on a few trees with real image tracking (Lucas-Kanade on the
+rendered bark) and clean masks, prints the table next to the paper's Table I, and writes
+``results/demo/`` (table, summary, per-trial CSV, missed-vs-time plot, 3D reconstructions over the
+ground truth, a camera/scene snapshot, and a video of the shipped learned policy scanning the
+first tree).
 Re-running resumes.
 
-Usage: ``python -m branch_gym.demo [--trees N] [--out DIR] [--workers K]``
+Usage: ``python -m branch_gym.demo [--trees N] [--out DIR] [--workers K]`` (installed:
+``branch-gym-demo``).
 """
 
 from __future__ import annotations
-
-import os
-
-# One BLAS thread per process before numpy and torch load: scans are small, workers run in parallel.
-os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse
 import logging
@@ -39,12 +36,11 @@ from branch_gym.evaluation.report import format_comparison
 from branch_gym.evaluation.runner import ConfigMismatchError
 from branch_gym.sim.world import World
 
-# The trained policies shipped with the repository (README, "Learned rotation policies"); the
-# demo runs from the repository root (make demo).
-SHIPPED_MODEL = Path("models/ppo_dagger_v2.zip")
-SHORT_SCAN_MODEL = Path("models/ppo_dagger_v2_shift1.zip")
+# The shipped trained policies, by name (agents/models/, docs/results/learned_policies.md).
+SHIPPED_MODEL = "ppo_dagger_v2"
+SHORT_SCAN_MODEL = "ppo_dagger_v2_shift1"
 # Seconds of scan time a found branch is worth: the reward's reference (the v2 students observe
-# the price but were fitted without price weighting: the README's table evaluates them at 100 s).
+# the price but were fitted without price weighting: their results are at 100 s).
 SHIPPED_PRICE_S = 100
 SHIPPED_POLICY = f"ppo:{SHIPPED_MODEL}@{SHIPPED_PRICE_S}"
 DEMO_POLICIES = (
@@ -91,6 +87,7 @@ def _snapshot(out: Path, seed: int) -> Path:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run the demo (``make demo``, ``branch-gym-demo``)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
     parser.add_argument("--trees", type=int, default=DEMO_TREES)
     parser.add_argument("--workers", type=int, default=2)

@@ -10,7 +10,7 @@ segmenter spec             mask from
 ``noisy:PRESET``           the labels with segmentation errors (``mild``, ``moderate``,
                            ``severe``; :mod:`branch_gym.sim.segmentation`)
 ``learned``                the RGB image, by the network trained in simulation and shipped in
-                           ``models/segmenter.pt`` (:mod:`recon.segmentation`); what a real
+                           ``recon/segmentation/weights/`` (:mod:`recon.segmentation`); what a real
                            robot runs. Optical flow, if the weights use it, is taken from the
                            previous rendered frame
 ``learned:PATH``           the same with another weights file

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -178,9 +178,9 @@ class TreeMetrics:
         self.pb_radius_rmse_m = _rms(self.pb_radius_errors_m)
         self.sb_residual_mean_m = _mean(self.sb_residuals_m)
         self.sb_radius_rmse_m = _rms(self.sb_radius_errors_m)
-        self.missed_pct = _percent(self.n_missed, self.n_gt)
-        self.spurious_pct = _percent(self.n_spurious, self.n_gt)
-        self.duplicate_pct = _percent(self.n_duplicates, self.n_gt)
+        self.missed_pct = pooled_percent([self.n_missed], [self.n_gt])
+        self.spurious_pct = pooled_percent([self.n_spurious], [self.n_gt])
+        self.duplicate_pct = pooled_percent([self.n_duplicates], [self.n_gt])
         self.sb_completeness_pct = PERCENT * _mean(np.asarray(self.match_completeness, float))
 
     def to_dict(self) -> dict[str, float | int | str]:
@@ -374,6 +374,20 @@ def evaluate(
     )
 
 
+def pooled_percent(counts: Iterable[int], totals: Iterable[int]) -> float:
+    """A percentage pooled over trials, as Table I's: 100 sum(counts) / sum(totals).
+
+    The missed, spurious and duplicate percentages of an evaluation, a checkpoint selection and
+    a DAgger round are all this over their trials (in-scope ground-truth branches the totals);
+    NaN when the totals sum to 0.
+
+    >>> pooled_percent([1, 0, 2], [5, 5, 10])
+    15.0
+    """
+    count, total = sum(counts), sum(totals)
+    return PERCENT * count / total if total else float("nan")
+
+
 def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
     """Mean and standard deviation over trials, as Table I reports them.
 
@@ -396,6 +410,7 @@ def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
         name: int(sum(getattr(t, name) for t in trials))
         for name in ("n_gt", "n_matched", "n_missed", "n_spurious", "n_duplicates")
     }
+    n_gt = [t.n_gt for t in trials]
     return {
         "n_trials": len(trials),
         "n_trials_without_pb": int(sum(len(t.pb_residuals_m) == 0 for t in trials)),
@@ -410,9 +425,9 @@ def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
         "sb_radius_rmse_mean_m": _mean(sb_rmse[np.isfinite(sb_rmse)]),
         "sb_radius_rmse_std_m": _std(sb_rmse[np.isfinite(sb_rmse)]),
         **totals,
-        "missed_pct": _percent(totals["n_missed"], totals["n_gt"]),
-        "spurious_pct": _percent(totals["n_spurious"], totals["n_gt"]),
-        "duplicate_pct": _percent(totals["n_duplicates"], totals["n_gt"]),
+        "missed_pct": pooled_percent([t.n_missed for t in trials], n_gt),
+        "spurious_pct": pooled_percent([t.n_spurious for t in trials], n_gt),
+        "duplicate_pct": pooled_percent([t.n_duplicates for t in trials], n_gt),
         "sb_completeness_pct": PERCENT * _mean(completeness),
     }
 
@@ -614,7 +629,3 @@ def _std(values: np.ndarray) -> float:
 
 def _rms(values: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(values)))) if len(values) else float("nan")
-
-
-def _percent(count: int, total: int) -> float:
-    return PERCENT * count / total if total else float("nan")

@@ -35,7 +35,6 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from recon.camera import CameraIntrinsics, project_points
 from recon.config import ModelerConfig
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
@@ -45,6 +44,8 @@ from recon.io.source import ScanSource, open_source
 from recon.metrics import TreeMetrics, evaluate
 from recon.model import TreeModel
 from recon.modeler import IterationReport, Modeler
+from recon.overlay import model_overlay
+from recon.plot3d import plot_model_3d
 from recon.tracking import LucasKanadeTracker, PointTracker
 
 logger = logging.getLogger(__name__)
@@ -186,37 +187,6 @@ def load_truth(path: str | Path) -> TreeModel:
 
 
 # ---------------------------------------------------------------------- overlay
-def draw_overlay(
-    rgb: np.ndarray,
-    mask: np.ndarray | None,
-    model: TreeModel,
-    T_world_camera: np.ndarray,
-    intrinsics: CameraIntrinsics,
-    text: str,
-    alpha: float = 0.35,
-) -> np.ndarray:
-    """(H, W, 3) BGR overlay: mask (magenta), projected primary (yellow), secondaries (cyan)."""
-    out = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
-    if mask is not None and mask.any():
-        tint = out.copy()
-        tint[mask] = (255, 0, 255)  # magenta: stands out on bark and foliage
-        out = cv2.addWeighted(tint, alpha, out, 1 - alpha, 0)
-    branches = [(model.primary, (0, 255, 255))] if model.primary is not None else []
-    branches += [(b, (255, 255, 0)) for b in model.secondaries]
-    for branch, color in branches:
-        if len(branch.points) < 2:
-            continue
-        pixels, depth = project_points(branch.points, T_world_camera, intrinsics)
-        ok = (depth > 0) & np.all(np.isfinite(pixels), axis=1)
-        runs = np.split(np.arange(len(ok)), np.flatnonzero(np.diff(ok.astype(int))) + 1)
-        for run in runs:
-            if ok[run[0]] and len(run) > 1:
-                pts = np.round(pixels[run] * 4).astype(np.int32)  # 2 fractional bits
-                cv2.polylines(out, [pts], False, color, 1, cv2.LINE_AA, shift=2)
-    cv2.putText(out, text, (4, 14), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (255, 255, 255), 1, cv2.LINE_AA)
-    return out
-
-
 class OverlayVideo:
     """MP4 through OpenCV; an animated GIF (Pillow) where no MP4 codec is available."""
 
@@ -263,59 +233,7 @@ class OverlayVideo:
         return self.path
 
 
-# ---------------------------------------------------------------------- plots and tables
-def plot_model_3d(
-    path: Path,
-    model: TreeModel,
-    camera_path: np.ndarray,
-    truth: TreeModel | None = None,
-    title: str = "",
-    dpi: int = 120,
-) -> None:
-    """Save a 3D plot of the model (and the truth, dashed) with the camera path (grey)."""
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    fig = plt.figure(figsize=(6, 7))
-    ax = fig.add_subplot(projection="3d")
-    scanned = [b.points for b in ([model.primary] if model.primary else []) + model.secondaries]
-    if len(camera_path):
-        scanned.append(camera_path)
-    if not scanned and truth is not None:
-        scanned = [truth.primary.points]
-    centre, half = np.zeros(3), 0.1
-    if scanned:
-        allp = np.vstack(scanned)
-        centre = 0.5 * (allp.min(0) + allp.max(0))
-        half = max(float((allp.max(0) - allp.min(0)).max()) / 2 + 0.02, 0.02)
-    if truth is not None:  # clipped to the scanned region: the rest of the tree was not seen
-        for i, branch in enumerate([truth.primary, *truth.secondaries]):
-            p = branch.points.copy()
-            p[np.any(np.abs(p - centre) > half, axis=1)] = np.nan
-            if np.isfinite(p).any():
-                ax.plot(*p.T, "k--", lw=0.8, label="ground truth" if i == 0 else None)
-    if model.primary is not None:
-        ax.plot(*model.primary.points.T, color="#8b5a2b", lw=2.5, label="primary")
-    for i, branch in enumerate(model.secondaries):
-        ax.plot(*branch.points.T, color="#3ca03c", lw=2, label="secondaries" if i == 0 else None)
-    if len(camera_path):
-        ax.plot(*camera_path.T, color="0.6", lw=1, label="camera")
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(centre[1] - half, centre[1] + half)
-    ax.set_zlim(centre[2] - half, centre[2] + half)
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_zlabel("z (m)")
-    ax.set_title(title, fontsize=9)
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="upper left", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    plt.close(fig)
-
-
+# ---------------------------------------------------------------------- tables
 def _write_csv(path: Path, rows: list[dict]) -> None:
     keys: list[str] = []
     for row in rows:
@@ -426,17 +344,16 @@ def replay(
             frame_rows.append({**row, "status": status, "reason": ""})
             if frame.has_image:
                 text = f"frame {loaded.index}  t={loaded.time_s:.2f}s  {last_outcome}"
-                video.write(
-                    draw_overlay(
-                        frame.rgb,
-                        frame.mask,
-                        modeler.model,
-                        frame.T_world_camera,
-                        intrinsics,
-                        text,
-                        config.mask_alpha,
-                    )
+                overlay = model_overlay(
+                    frame.rgb,
+                    frame.mask,
+                    modeler.model,
+                    frame.T_world_camera,
+                    intrinsics,
+                    [text],
+                    config.mask_alpha,
                 )
+                video.write(cv2.cvtColor(overlay, cv2.COLOR_RGB2BGR))
         bar.close()
         if n_fed == 0:
             raise ReplayError(f"{source.name}: no usable frame ({dict(skip_reasons)})")

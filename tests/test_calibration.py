@@ -1,4 +1,4 @@
-"""Hold-logit calibration of a discrete student (branch_gym/training/calibration.py)."""
+"""Hold-logit calibration of a discrete student (research/calibration.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from agents.ppo import load_model
-from branch_gym.training.calibration import calibration_path, main, shift_hold_logit
+from research.calibration import calibration_path, main, shift_hold_logit
 
 
 @pytest.fixture(scope="module")

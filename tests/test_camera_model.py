@@ -93,6 +93,8 @@ BAD_VALUES = [
     ("exposure_gain_range", 1.0),
     ("exposure_adapt_rate", 0.0),
     ("exposure_adapt_rate", 1.5),
+    ("adapt_deadband", -0.1),
+    ("adapt_deadband", float("nan")),
     ("white_balance_error_range", (1.2, 0.8)),
     ("white_balance_error_range", (-0.1, 1.0)),
     ("white_balance_error_range", None),
@@ -260,7 +262,7 @@ def test_auto_exposure_gain_is_clipped_to_its_range() -> None:
 
 def test_auto_exposure_adapts_gradually_and_reset_exposes_directly() -> None:
     rate = 0.4
-    config = dataclasses.replace(CLEAN, exposure_adapt_rate=rate)
+    config = dataclasses.replace(CLEAN, exposure_adapt_rate=rate, adapt_deadband=0.0)
     camera = CameraModel(config, np.random.default_rng(0))
     rng = np.random.default_rng(1)
     dark, bright = _uniform(0.02), _uniform(0.32)
@@ -508,3 +510,34 @@ def test_realistic_scene_looks_like_the_real_frames() -> None:
     assert sky.mean() > 180 and row.mean() < 120 and trunk.mean() < row.mean()
     assert row[0] > row[2] and trunk[0] > trunk[2]  # brown stays brown (partial grey world)
     assert abs(image.mean() - TARGET_DN) < 25  # vignetting and JPEG move it a little
+
+
+def test_white_balance_follows_a_colour_change_gradually() -> None:
+    config = dataclasses.replace(
+        CameraConfig.realistic(), white_balance_error_range=(1.0, 1.0), adapt_deadband=0.0
+    )
+    camera = CameraModel(config, np.random.default_rng(0))
+    neutral = np.full((HEIGHT, WIDTH, 3), 0.3, np.float32)
+    warm = neutral * np.array([1.6, 1.0, 0.6], np.float32)
+    camera.expose(neutral, None, np.random.default_rng(1))
+    assert camera.white_balance_gains[0] == pytest.approx(1.0, abs=1e-6)
+    reds = []
+    for k in range(3):
+        camera.expose(warm, None, np.random.default_rng(2 + k))
+        reds.append(float(camera.white_balance_gains[0]))
+    settled = (1.0 / 1.6) ** GREY_WORLD_STRENGTH  # partial grey world
+    # Each frame moves exposure_adapt_rate of the way (in log gain) toward the settled gain.
+    for k, red in enumerate(reds, start=1):
+        expected = settled ** (1.0 - (1.0 - config.exposure_adapt_rate) ** k)
+        assert red == pytest.approx(expected, rel=1e-4)
+
+
+def test_exposure_holds_within_the_deadband_and_adapts_beyond_it() -> None:
+    camera = CameraModel(CLEAN, np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    camera.expose(_uniform(0.1), None, rng)
+    held = camera.exposure_gain
+    camera.expose(_uniform(0.1 * 1.1), None, rng)  # 10 % brighter: within the deadband
+    assert camera.exposure_gain == held
+    camera.expose(_uniform(0.1 * 2.0), None, rng)  # twice as bright: the AE moves
+    assert camera.exposure_gain < held

@@ -127,7 +127,7 @@ def test_make_agent_builds_it_for_the_env() -> None:
 
 # Clean masks of the paper's trees leave no evidence: the pipeline lifts every 2D candidate in
 # the iteration that first shows it and the iterations stay consistent, so the heuristic holds
-# (README, "Learned rotation policies"). Severely noisy masks of the hard preset do disagree.
+# (docs/results/learned_policies.md). Severely noisy masks of the hard preset do disagree.
 EVIDENCE_SCAN = {
     "tracker": "oracle",
     "end_height_m": 0.5,

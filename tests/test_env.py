@@ -23,7 +23,6 @@ from branch_gym.env import BranchScanEnv
 from branch_gym.env.config import ObservationConfig
 from branch_gym.env.layout import VECTOR_SIZE, ImageChannel, VectorField, vector_part
 from branch_gym.env.observation import PipelineState, draw_state, make_observation
-from branch_gym.env.overlay import draw_polyline
 from branch_gym.env.reward import RewardConfig, RewardTracker
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.config import TreeConfig
@@ -32,6 +31,7 @@ from recon.curve2d.fit import fit_mask_curves
 from recon.metrics import TreeMetrics
 from recon.model import BranchModel, TreeModel
 from recon.modeler import Outcome
+from recon.overlay import draw_polyline
 from tests.synthetic import camera_following, rasterise_mask, side_branch, straight_tube
 
 # Short scans with cheap rotations (an arc of 4 deg is ~14 mm of motion).

@@ -13,7 +13,6 @@ import pytest
 
 import branch_gym
 from agents.baselines import PeriodicAgent
-from agents.ppo import action_type_of
 from branch_gym.env.actions import ActionCodec
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG, TRIGGER_ANGLES_DEG
 from branch_gym.scan import ScanConfig, ScanSession
@@ -83,14 +82,6 @@ def test_periodic_agent_in_the_trigger_env_makes_the_same_scan() -> None:
         b.n_iterations,
     )
     np.testing.assert_allclose(a.model.primary.points, b.model.primary.points)
-
-
-def test_action_type_of_model_spaces() -> None:
-    assert action_type_of(gymnasium.spaces.Box(-1, 1, (1,))) == "continuous"
-    assert action_type_of(gymnasium.spaces.Discrete(5)) == "discrete"
-    assert action_type_of(gymnasium.spaces.Discrete(3)) == "trigger"
-    with pytest.raises(ValueError, match="no BranchScan env"):
-        action_type_of(gymnasium.spaces.Discrete(7))
 
 
 def test_first_action_logit_starts_ppo_holding(tmp_path: Path) -> None:

@@ -101,11 +101,11 @@ def test_the_shipped_priced_policy_rotates_more_readily_when_branches_are_dear()
     The observations of three hold-only scans are shown to the shipped price-conditioned
     DAgger student with the price at the bottom (25 s) and at the top (400 s) of its range; its
     probability of leaving "hold" must rise with the price (on 60 trees it rotates 2.7 times
-    per scan at 25 s and 3.3 at 400 s, README). The unconditioned student barely moves.
+    per scan at 25 s and 3.3 at 400 s, its card). The unconditioned student barely moves.
     """
     import torch
 
-    from agents.ppo import load_model
+    from agents.ppo import load_model, resolve_model_path
 
     env = gymnasium.make(
         branch_gym.DISCRETE_ENV_ID_V1, tracker="oracle", render_tracking_frames=False,
@@ -123,7 +123,7 @@ def test_the_shipped_priced_policy_rotates_more_readily_when_branches_are_dear()
     batch = {key: np.stack([o[key] for o in observations]) for key in observations[0]}
 
     def rotate_probability(model_name: str, price: float) -> float:
-        model = load_model(ROOT / "models" / model_name)
+        model = load_model(resolve_model_path(model_name))
         batch[PRICE_KEY][:] = price
         tensor, _ = model.policy.obs_to_tensor(batch)
         with torch.no_grad():
@@ -186,9 +186,9 @@ def test_the_shipped_v2_student_wants_to_rotate_when_a_branch_points_at_the_came
     the lens (at 0.40 m) and along the same primary alone."""
     import torch
 
-    from agents.ppo import load_model
+    from agents.ppo import load_model, resolve_model_path
 
-    model = load_model(ROOT / "models" / "ppo_dagger_v2.zip")
+    model = load_model(resolve_model_path("ppo_dagger_v2"))
 
     def action_probabilities(side_branches: str) -> np.ndarray:
         observations = _v2_scan(side_branches, 0.40, 0.50)[:-1]  # those the student acts on

@@ -42,10 +42,10 @@ from branch_gym.evaluation.trials import (
 )
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
-from branch_gym.training.selection import score_records, select_model, trial_return
 from recon.io.folder import ScanFolder
 from recon.metrics import TreeMetrics, aggregate
 from recon.model import BranchModel, TreeModel
+from research.selection import score_records, select_model, trial_return
 
 ROOT = Path(__file__).resolve().parents[1]
 POLICIES = ("none", "periodic:22.5:1.5")

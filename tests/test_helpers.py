@@ -71,6 +71,13 @@ def test_validation_helpers_name_the_class_the_field_and_the_value(module: objec
         module.require_finite(_Example(rate=math.nan), "rate")
 
 
+def test_the_simulators_validators_are_recons() -> None:
+    """One implementation: ``branch_gym.sim.validation`` only names ``recon.validation``'s."""
+    for name in sim_validation.__all__:
+        assert getattr(sim_validation, name) is getattr(recon_validation, name)
+    assert is_number is recon_validation.is_number
+
+
 def test_sim_validation_rejects_non_numbers_and_checks_int_bounds() -> None:
     with pytest.raises(ValueError, match=r"_Example\.rate must be positive and finite, got True"):
         sim_validation.require_positive(_Example(rate=True), "rate")

@@ -242,3 +242,45 @@ def test_without_held_out_labels_every_epoch_runs():
     assert fit["train_accuracy"] == 1.0  # "hold" everywhere is learnt in three epochs
     with pytest.raises(ValueError, match="validation_fraction"):
         ImitationConfig(train=FAST, validation_fraction=1.0)
+
+
+FIT_SETTINGS = (
+    "epochs", "batch_size", "learning_rate", "weight_decay", "validation_fraction",
+    "from_scratch", "rotation_weight", "reference_value_s",
+)  # fmt: skip
+
+
+def test_the_recipe_files_hold_the_shipped_students_fit_settings():
+    """configs/dagger_*.json give the settings each shipped student's round log recorded."""
+    from pathlib import Path
+
+    from agents.ppo import SHIPPED_MODELS_DIR
+    from branch_gym.config_utils import read_config_file
+
+    root = Path(__file__).resolve().parents[1]
+    for recipe, log in (("dagger_v2", "ppo_dagger_v2"), ("dagger_v1_priced", "ppo_dagger")):
+        config = ImitationConfig.from_dict(read_config_file(root / "configs" / f"{recipe}.json"))
+        rows = [json.loads(line) for line in (SHIPPED_MODELS_DIR / f"{log}.rounds.jsonl").open()]
+        recorded = {k: rows[-1][k] for k in FIT_SETTINGS if k in rows[-1]}
+        assert recorded == {k: getattr(config, k) for k in recorded}, recipe
+    v2 = ImitationConfig.from_dict(read_config_file(root / "configs" / "dagger_v2.json"))
+    assert v2.train.env_id == "BranchScanDiscrete-v2" and v2.rotation_weight == 4.0
+
+
+def test_the_cli_layers_defaults_the_recipe_and_the_options(tmp_path):
+    from pathlib import Path
+
+    from branch_gym.training.imitation.cli import build_parser, config_from_args
+
+    recipe = Path(__file__).resolve().parents[1] / "configs" / "dagger_v2.json"
+    args = build_parser().parse_args(["--config", str(recipe), "--out", "x", "--rounds", "3"])
+    config = config_from_args(args)
+    assert (config.rounds, config.epochs, config.train.ppo.cnn_output_dim) == (3, 8, 64)
+    assert not config.train.render_tracking_frames  # the oracle's fast mode, from the recipe
+    lk = config_from_args(build_parser().parse_args(["--out", "x", "--tracker", "lk"]))
+    assert lk.train.render_tracking_frames and lk.rounds == ImitationConfig().rounds
+    (tmp_path / "bad.json").write_text('{"roundz": 3}')
+    with pytest.raises(ValueError, match="roundz"):
+        config_from_args(
+            build_parser().parse_args(["--config", str(tmp_path / "bad.json"), "--out", "x"])
+        )

@@ -1,4 +1,4 @@
-"""Memory probe (branch_gym.training.memory_probe): a recurrent fit beats a feed-forward one
+"""Memory probe (research.memory_probe): a recurrent fit beats a feed-forward one
 exactly where the labels depend on an earlier observation."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from branch_gym.training.imitation import (
     episode_slices,
     new_student,
 )
-from branch_gym.training.memory_probe import format_table, probe
+from research.memory_probe import format_table, probe
 
 FAST = TrainConfig(
     env_id="BranchScanDiscrete-v2",

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 import branch_gym
+from bench.action_mix import MIX_STEPS_PER_ROTATION, FixedActionMix, mix_angle_deg
 from branch_gym.env.score_cache import ScoreCache
 from branch_gym.scan import ScanSession, reference_scan_config, training_scan_config
 from branch_gym.sim.robot.config import RobotConfig
 from branch_gym.sim.robot.motion import CameraMotion, manipulability
 from branch_gym.sim.world import World
-from branch_gym.training.action_mix import MIX_STEPS_PER_ROTATION, FixedActionMix, mix_angle_deg
 from recon.metrics import evaluate
 
 SHORT_END_M = 0.36  # a few iterations past the first rotation of the mix (our choice)

@@ -9,8 +9,8 @@ import gymnasium
 import pytest
 
 import branch_gym
+from bench.action_mix import FixedActionMix
 from branch_gym.scan import reference_scan_config, training_scan_config
-from branch_gym.training.action_mix import FixedActionMix
 
 pytestmark = pytest.mark.slow
 

@@ -1,16 +1,17 @@
 """The Gymnasium environment for active branch scanning (ids registered on ``import branch_gym``).
 
-====================  =============================================================
+====================  ==================================================================
+``versions.py``       the registered ids as data: action type and observation of each
 ``layout.py``         action and observation layout as named constants (pure numpy)
 ``config.py``         ``EnvConfig``, ``ObservationConfig``, the keyword parser
 ``actions.py``        action spaces; action -> target rotation angle
-``observation.py``    pipeline state -> image channels + vector
-``overlay.py``        drawing projected branches, 2D curves and masks
+``observation.py``    pipeline state -> image channels + vector (drawn by ``recon.overlay``)
+``coverage.py``       the view-coverage memory of the v1 and v2 observations
 ``reward.py``         ``RewardConfig`` and the ground-truth reward
 ``info.py``           the flat ``info`` dicts
 ``rendering.py``      ``render()``: overlaid camera frames, the pybullet GUI
 ``scan_env.py``       ``BranchScanEnv``: wires the above around ``branch_gym.scan.ScanSession``
-====================  =============================================================
+====================  ==================================================================
 
 Importing this package stays light (the layout constants only); ``BranchScanEnv`` and the configs
 load the simulator on first access.

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
-from branch_gym.config_utils import is_number
+from branch_gym.config_utils import check_keys, is_number
 from branch_gym.env.coverage import CoverageConfig
 from branch_gym.env.layout import (
     ACTION_TYPES,
@@ -243,14 +243,8 @@ def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
     if isinstance(kwargs.get("reward"), dict):
         kwargs["reward"] = RewardConfig.from_dict(kwargs["reward"])
     if isinstance(kwargs.get("observation"), dict):
-        observation = kwargs["observation"]
-        names = {f.name for f in fields(ObservationConfig)}
-        unknown = sorted(set(observation) - names)
-        if unknown:
-            raise ValueError(
-                f"unknown ObservationConfig key(s) {unknown}: expected some of {sorted(names)}"
-            )
-        kwargs["observation"] = ObservationConfig(**observation)
+        check_keys(ObservationConfig, kwargs["observation"])
+        kwargs["observation"] = ObservationConfig(**kwargs["observation"])
     return EnvConfig(scan=scan, **kwargs)
 
 

@@ -14,7 +14,6 @@ from enum import IntEnum
 
 import numpy as np
 
-ACTION_TYPES = ("continuous", "discrete", "discrete_hold", "trigger")
 # Largest rotation of the paper's experiments (Table I: 22.5 and 45 deg): the continuous action
 # [-1, 1] spans [-THETA_MAX_DEG, THETA_MAX_DEG].
 THETA_MAX_DEG = 45.0
@@ -23,6 +22,16 @@ DISCRETE_ANGLES_DEG = (-45.0, -22.5, 0.0, 22.5, 45.0)
 # The trigger action holds the angle (0) or advances the paper's rotation cycle (+theta, 0,
 # -theta, 0; section V) by one move with one of these theta (deg): the paper's two angles.
 TRIGGER_ANGLES_DEG = (22.5, 45.0)
+# The action types (``EnvConfig.action_type``), each with its space and meaning: the one list
+# (``branch_gym.env.actions`` decodes them, ``branch_gym.env.versions`` gives one to every id).
+ACTION_DESCRIPTIONS = {
+    "continuous": "`Box(-1, 1, (1,))`: target angle / 45 deg",
+    "discrete": "`Discrete(5)`: -45, -22.5, 0, 22.5, 45 deg",
+    "discrete_hold": "`Discrete(6)`: hold, or -45, -22.5, 0, 22.5, 45 deg",
+    "trigger": "`Discrete(3)`: 0 holds the angle, 1 / 2 advance the paper's cycle "
+    "(+θ, 0, -θ, 0) with θ = 22.5 / 45 deg",
+}
+ACTION_TYPES = tuple(ACTION_DESCRIPTIONS)
 
 
 class VectorField(IntEnum):

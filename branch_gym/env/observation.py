@@ -11,7 +11,7 @@ image / 255).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import cv2
@@ -22,6 +22,7 @@ from branch_gym.env.config import ObservationConfig
 from branch_gym.env.coverage import CoverageConfig
 from branch_gym.env.layout import (
     COVERAGE_KEY,
+    EXTRA_KEYS,
     IMAGE_KEY,
     N_CHANNELS,
     OUTCOME_FIELDS,
@@ -33,12 +34,12 @@ from branch_gym.env.layout import (
     flatten_observation,
     vector_bounds,
 )
-from branch_gym.env.overlay import draw_curve, draw_model
 from branch_gym.scan import ScanSession
 from recon.camera import CameraIntrinsics
 from recon.curve2d.types import Curve2D, MaskCurves
 from recon.model import TreeModel
 from recon.modeler import IterationReport, Outcome
+from recon.overlay import draw_curve, draw_model
 
 _FULL = 255  # drawn / covered pixel value
 _OUTCOMES = (Outcome.CONSISTENT, Outcome.INCONSISTENT, Outcome.RESTART)
@@ -149,17 +150,29 @@ def observation_space(
         parts[COVERAGE_KEY] = spaces.Box(0.0, 1.0, shape=(size,), dtype=np.float32)
     if price:
         parts[PRICE_KEY] = spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)
-    if flatten:
-        bounds = [
-            (np.broadcast_to(p.low, p.shape).ravel(), np.broadcast_to(p.high, p.shape).ravel())
-            for p in parts.values()
-        ]
-        image_size = int(np.prod(shape))
-        bounds[1] = (np.zeros(image_size, np.float32), np.ones(image_size, np.float32))
-        flat_low = np.concatenate([b[0] for b in bounds]).astype(np.float32)
-        flat_high = np.concatenate([b[1] for b in bounds]).astype(np.float32)
-        return spaces.Box(flat_low, flat_high, dtype=np.float32)
-    return spaces.Dict(parts)
+    return flat_space(parts) if flatten else spaces.Dict(parts)
+
+
+def flat_space(parts: Mapping[str, spaces.Box]) -> spaces.Box:
+    """The Box of a Dict observation flattened as ``layout.flatten_observation`` flattens it.
+
+    The vector, the image / 255 (channel-first), then the extras (``EXTRA_KEYS``) it holds.
+
+    Args:
+        parts: The Dict's spaces by key (a ``spaces.Dict``'s ``spaces``), in any order.
+    """
+    bounds = []
+    for key in (VECTOR_KEY, IMAGE_KEY, *(k for k in EXTRA_KEYS if k in parts)):
+        part = parts[key]
+        if key == IMAGE_KEY:
+            size = int(np.prod(part.shape))
+            bounds.append((np.zeros(size, np.float32), np.ones(size, np.float32)))
+        else:
+            low = np.broadcast_to(part.low, part.shape).ravel()
+            bounds.append((low, np.broadcast_to(part.high, part.shape).ravel()))
+    flat_low = np.concatenate([b[0] for b in bounds]).astype(np.float32)
+    flat_high = np.concatenate([b[1] for b in bounds]).astype(np.float32)
+    return spaces.Box(flat_low, flat_high, dtype=np.float32)
 
 
 def draw_state(state: PipelineState, config: ObservationConfig) -> Drawing:

@@ -15,10 +15,10 @@ import sys
 import numpy as np
 
 from branch_gym.env.observation import Drawing
-from branch_gym.env.overlay import compose_frame
 from branch_gym.scan import ScanSession
 from branch_gym.sim.world import World
 from recon.modeler import IterationReport
+from recon.overlay import compose_frame
 
 # pybullet GUI viewpoint (our choice): 0.9 m away, yawed 45 deg, 20 deg above the camera.
 GUI_DISTANCE_M = 0.9

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields
 
+from branch_gym.config_utils import check_keys
 from branch_gym.sim.validation import require_non_negative
 from recon.metrics import TreeMetrics
 
@@ -55,6 +56,36 @@ class RewardConfig:
     def __post_init__(self) -> None:
         require_non_negative(self, *(f.name for f in fields(self)))
 
+    def episode_return(
+        self,
+        metrics: TreeMetrics,
+        scan_time_s: float,
+        failed: bool,
+        time_penalty_per_s: float | None = None,
+    ) -> float:
+        """The return of a whole episode: what the step rewards of :class:`RewardTracker` sum to.
+
+        Args:
+            metrics: The final model scored against the ground truth.
+            scan_time_s: The episode's scan time (s).
+            failed: The scan failed.
+            time_penalty_per_s: The episode's price of a second (``1 / branch_value_s``); None
+                keeps ``time_penalty_per_s``.
+
+        >>> from types import SimpleNamespace
+        >>> metrics = SimpleNamespace(n_matched=3, n_spurious=1, n_duplicates=0)
+        >>> RewardConfig().episode_return(metrics, scan_time_s=20.0, failed=False)
+        2.3
+        """
+        penalty = self.time_penalty_per_s if time_penalty_per_s is None else time_penalty_per_s
+        return (
+            self.match_reward * metrics.n_matched
+            - self.spurious_penalty * metrics.n_spurious
+            - self.duplicate_penalty * metrics.n_duplicates
+            - penalty * scan_time_s
+            - self.failure_penalty * failed
+        )
+
     @classmethod
     def from_dict(cls, data: dict) -> RewardConfig:
         """Build from ``{weight name: value}``.
@@ -62,12 +93,7 @@ class RewardConfig:
         Raises:
             ValueError: an unknown key (named) or a bad value.
         """
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise ValueError(
-                f"unknown RewardConfig key(s) {unknown}: expected some of {sorted(names)}"
-            )
+        check_keys(cls, data)
         return cls(**data)
 
 

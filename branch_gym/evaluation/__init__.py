@@ -1,7 +1,8 @@
-"""Evaluation of rotation policies over many simulated trees (paper Table I); ``eval.py`` is its
-command line.
+"""Evaluation of rotation policies over many simulated trees (paper Table I).
 
-Modules: :mod:`~branch_gym.evaluation.trials` (one saved trial), :mod:`.runner` (process pool,
-resume), :mod:`.report` (summary, table, CSV), :mod:`.paper` (the paper's numbers),
-:mod:`.plots` (figures), :mod:`.pipeline` (all of it in order).
+Modules: :mod:`~branch_gym.evaluation.episodes` (the one episode loop), :mod:`.trials` (one saved
+trial), :mod:`.runner` (process pool, resume), :mod:`.report` (summary, table, CSV),
+:mod:`.statistics` (bootstrap intervals, paired comparisons), :mod:`.paper` (the paper's
+numbers), :mod:`.plots` (figures), :mod:`.pipeline` (all of it in order), :mod:`.cli` (the
+command line: ``eval.py``, ``branch-gym-eval``).
 """

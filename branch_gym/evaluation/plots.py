@@ -1,7 +1,7 @@
 """Figures of an evaluation: missed branches against scan time, and reconstructions per tree.
 
 Figures are drawn on matplotlib's Agg canvas (no display, no pyplot state), so they work in worker
-processes and on headless machines.
+processes and on headless machines; the 3D panels with :mod:`recon.plot3d`, as the replay's.
 """
 
 from __future__ import annotations
@@ -13,12 +13,13 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
-from mpl_toolkits.mplot3d import Axes3D  # importing it registers the "3d" projection
+from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (importing it registers "3d")
 
 from agents.ppo import PPO_SPEC_PREFIX
 from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
 from branch_gym.evaluation.trials import TrialRecord
 from recon.metrics import MetricsConfig
+from recon.plot3d import fit_view, plot_branch
 
 TRUTH_COLOR = "0.6"
 MODEL_COLOR = "red"
@@ -108,6 +109,7 @@ def plot_tree(records: Sequence[TrialRecord], path: Path) -> None:
         raise ValueError("plot_tree needs at least one trial")
     top_m = max(r.metrics.scanned_top_z_m for r in records)
     z_range = (MetricsConfig().band_min_z_m - BELOW_SCAN_M, top_m + ABOVE_SCAN_M)
+    window = (np.array([-np.inf, -np.inf, z_range[0]]), np.array([np.inf, np.inf, z_range[1]]))
     figure = Figure(figsize=(3.2 * len(records), 6.0))
     FigureCanvasAgg(figure)
     for column, record in enumerate(records, start=1):
@@ -115,10 +117,10 @@ def plot_tree(records: Sequence[TrialRecord], path: Path) -> None:
         truth = [record.truth.primary, *record.truth.secondaries]
         model = [b for b in [record.model.primary, *record.model.secondaries] if b is not None]
         for branch in truth:
-            _draw(axes, branch.points, z_range, TRUTH_COLOR, 3.0)
+            plot_branch(axes, branch.points, window, color=TRUTH_COLOR, linewidth=3.0)
         for branch in model:
-            _draw(axes, branch.points, z_range, MODEL_COLOR, 1.5)
-        _equal_box(axes, [b.points for b in truth + model], z_range)
+            plot_branch(axes, branch.points, window, color=MODEL_COLOR, linewidth=1.5)
+        fit_view(axes, [b.points for b in truth + model], z_range)
         metrics = record.metrics
         failure = f", {record.failure}" if record.failure else ""
         axes.set_title(
@@ -136,29 +138,3 @@ def plot_tree(records: Sequence[TrialRecord], path: Path) -> None:
     figure.suptitle(f"Tree seed {records[0].seed}: reconstruction (red) over ground truth (grey)")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
-
-
-def _draw(
-    axes: Axes3D, points: np.ndarray, z_range: tuple[float, float], color: str, width: float
-) -> None:
-    """A polyline, cut to the height window (NaN gaps break the line outside it)."""
-    if len(points) == 0:
-        return
-    shown = points.astype(float).copy()
-    shown[(shown[:, 2] < z_range[0]) | (shown[:, 2] > z_range[1])] = np.nan
-    axes.plot(shown[:, 0], shown[:, 1], shown[:, 2], color=color, linewidth=width)
-
-
-def _equal_box(axes: Axes3D, polylines: list[np.ndarray], z_range: tuple[float, float]) -> None:
-    """Equal scale on all axes over the points inside the height window."""
-    points = np.concatenate([p for p in polylines if len(p)] or [np.zeros((1, 3))])
-    points = points[(points[:, 2] >= z_range[0]) & (points[:, 2] <= z_range[1])]
-    if len(points) == 0:
-        return
-    low, high = points.min(axis=0), points.max(axis=0)
-    low[2], high[2] = z_range
-    centre, half = (low + high) / 2.0, np.maximum((high - low) / 2.0, 0.02)
-    axes.set_xlim(centre[0] - half[0], centre[0] + half[0])
-    axes.set_ylim(centre[1] - half[1], centre[1] + half[1])
-    axes.set_zlim(*z_range)
-    axes.set_box_aspect(tuple(2.0 * half))

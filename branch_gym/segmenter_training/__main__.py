@@ -4,8 +4,9 @@ Examples::
 
     python -m branch_gym.segmenter_training generate --out runs/segmenter/data --seed 0
     python -m branch_gym.segmenter_training train --data runs/segmenter/data \
-        --run runs/segmenter/run --seed 0 --export models/segmenter.pt
-    python -m branch_gym.segmenter_training evaluate --weights models/segmenter.pt
+        --run runs/segmenter/run --seed 0 --export runs/segmenter.pt
+    python -m branch_gym.segmenter_training evaluate \
+        --weights recon/segmentation/weights/segmenter.pt
 
 Every command is resumable: ``generate`` skips finished shards, ``train`` continues from the
 run folder's checkpoint.

@@ -7,13 +7,13 @@ of :func:`branch_gym.training.train.train`, not configuration.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from gymnasium import spaces
 
 from branch_gym import ENV_ID, ENV_IDS
-from branch_gym.config_utils import flatten_dict, is_number
+from branch_gym.config_utils import check_keys, flatten_dict, is_number
 from branch_gym.env.config import env_config_from_kwargs
 from branch_gym.env.reward import RewardConfig
 from branch_gym.sim.validation import (
@@ -149,7 +149,7 @@ class TrainConfig:
             step waits for the slowest env (a rotation costs ~8x a plain step). The same PPO;
             its sampled actions differ from a lockstep run's. Not with ``normalize`` or
             ``recurrent``; a resumed run cannot switch it. Our choice: off by default (older
-            runs resume unchanged); the README recipes and the bench use it.
+            runs resume unchanged); the recipes (``configs/``) and the bench use it.
         init_model: A model file whose policy weights a new run starts from instead of a
             random initialisation (a PPO model of the same env and ``ppo`` network shape, e.g.
             a DAgger student of :mod:`branch_gym.training.imitation`); None starts fresh.
@@ -247,21 +247,11 @@ class TrainConfig:
         Raises:
             ValueError: unknown keys (named) or bad values.
         """
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise ValueError(
-                f"unknown TrainConfig key(s) {unknown}: expected some of {sorted(names)}"
-            )
+        check_keys(cls, data)
         values = dict(data)
         ppo = values.pop("ppo", {})
         if isinstance(ppo, dict):
-            ppo_names = {f.name for f in fields(PPOConfig)}
-            bad = sorted(set(ppo) - ppo_names)
-            if bad:
-                raise ValueError(
-                    f"unknown PPOConfig key(s) {bad}: expected some of {sorted(ppo_names)}"
-                )
+            check_keys(PPOConfig, ppo)
             ppo = PPOConfig(**ppo)
         return cls(ppo=ppo, **values)
 

@@ -11,7 +11,6 @@ this process, reset on the held-out trees one by one (:mod:`branch_gym.training.
 from __future__ import annotations
 
 import functools
-import os
 from collections.abc import Callable
 from typing import Any
 
@@ -19,12 +18,11 @@ import gymnasium as gym
 from gymnasium import spaces
 
 from branch_gym.env.layout import VECTOR_KEY
+from branch_gym.threads import pin_worker_threads
 from branch_gym.training.config import TrainConfig
 from branch_gym.training.seeds import TreeSeedWrapper
 from branch_gym.training.worker_rollouts import PolicyRolloutWorker
 
-# One BLAS / OpenCV / torch thread per env process: workers run side by side on few cores.
-_WORKER_THREADS = 1
 DICT_POLICY = "MultiInputPolicy"
 FLAT_POLICY = "MlpPolicy"
 # sb3-contrib RecurrentPPO's (TrainConfig.recurrent): the same features, then an LSTM.
@@ -45,12 +43,7 @@ def make_env(
     """
     from stable_baselines3.common.monitor import Monitor
 
-    os.environ.setdefault("OMP_NUM_THREADS", str(_WORKER_THREADS))
-    import cv2
-    import torch
-
-    cv2.setNumThreads(_WORKER_THREADS)
-    torch.set_num_threads(_WORKER_THREADS)
+    pin_worker_threads()
     env = gym.make(config.env_id, **config.env_kwargs())
     env = Monitor(TreeSeedWrapper(env, config.seed, rank, config.n_envs))
     if wrapper is not None:

@@ -21,7 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from agents.ppo import algorithm_class, load_model, load_normalizer
+from agents.ppo import (
+    ENV_ID_ATTRIBUTE,
+    algorithm_class,
+    load_model,
+    load_normalizer,
+    resolve_model_path,
+)
 from branch_gym.training.callbacks import (
     ScanMetricsCallback,
     TorchThreadsCallback,
@@ -246,6 +252,7 @@ def new_model(config: TrainConfig, env: Any, tensorboard_log: str | None = None)
         verbose=0,
         **config.ppo.sb3_kwargs(env.observation_space),
     )
+    setattr(model, ENV_ID_ATTRIBUTE, config.env_id)  # every save of the model records it
     if config.init_model is not None:
         load_policy_weights(model, config.init_model)
         scale_action_logits(model, config.init_logit_scale)
@@ -264,12 +271,19 @@ def training_algorithm(config: TrainConfig) -> type:
 def load_policy_weights(model: Any, path: str | Path) -> None:
     """Copy the policy (and value) weights of a saved PPO model into ``model``.
 
+    Args:
+        model: The new model.
+        path: A model file, or a shipped model's name (``ppo_dagger_v2``).
+
     Raises:
         FileNotFoundError: no such file (named).
-        ValueError: not a model file (``ModelFileError``), or its network does not fit
-            ``model``'s (named).
+        ValueError: not a model file (``ModelFileError``), a model of another env id than
+            ``model``'s, or a network that does not fit ``model``'s (named).
     """
-    source = load_model(path)
+    source = load_model(resolve_model_path(path))
+    theirs, ours = getattr(source, ENV_ID_ATTRIBUTE), getattr(model, ENV_ID_ATTRIBUTE, None)
+    if None not in (theirs, ours) and theirs != ours:
+        raise ValueError(f"init model {path} was trained on {theirs}, the run's env is {ours}")
     try:
         model.policy.load_state_dict(source.policy.state_dict())
     except RuntimeError as exc:

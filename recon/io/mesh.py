@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from recon.geometry.frames import rotation_minimising_frames
 from recon.model import BranchModel, TreeModel
 
 PRIMARY_RGB = (139, 90, 43)
@@ -35,6 +36,9 @@ def tube_mesh(
 ) -> tuple[np.ndarray, np.ndarray]:
     """A closed tube around a polyline (rotation-minimising frames, outward winding).
 
+    The rings follow :func:`recon.geometry.frames.rotation_minimising_frames`, the simulator's
+    tree meshes' frames.
+
     Args:
         points: (N, 3) centerline, metres.
         radii: (N,) radius per point, metres.
@@ -54,16 +58,7 @@ def tube_mesh(
         return np.zeros((0, 3)), np.zeros((0, 3), int)
     tangents = np.gradient(points, axis=0)
     tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
-    seed = np.eye(3)[int(np.argmin(np.abs(tangents[0])))]
-    normal = np.cross(tangents[0], seed)
-    normal /= np.linalg.norm(normal)
-    normals = [normal]
-    for i in range(1, len(points)):  # parallel transport of the normal
-        n = normals[-1] - tangents[i] * (normals[-1] @ tangents[i])
-        norm = np.linalg.norm(n)
-        n = n / norm if norm > 1e-12 else normals[-1]
-        normals.append(n)
-    normals = np.array(normals)
+    normals = rotation_minimising_frames(points, tangents)
     binormals = np.cross(tangents, normals)
     angles = np.linspace(0.0, 2 * np.pi, config.sides, endpoint=False)
     ring = np.cos(angles)[None, :, None] * normals[:, None] + (

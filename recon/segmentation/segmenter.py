@@ -1,9 +1,8 @@
 """The learned segmenter: RGB (+ the previous frame) -> branch mask, and how to load it.
 
-``load_segmenter("learned")`` loads the shipped weights ``models/segmenter.pt`` of the repository
-(found relative to this package: ``<repo>/recon/segmentation/`` -> ``<repo>/models/``; the
-environment variable ``BRANCH_SEGMENTER_WEIGHTS`` overrides that path, e.g. for an installed,
-non-editable copy). ``load_segmenter("learned:PATH")`` loads any other weights file.
+``load_segmenter("learned")`` loads the shipped weights, package data of this package
+(``recon/segmentation/weights/segmenter.pt``, its card ``segmenter.md`` beside it), in a checkout
+and in any installed copy alike. ``load_segmenter("learned:PATH")`` loads any other weights file.
 """
 
 from __future__ import annotations
@@ -11,7 +10,6 @@ from __future__ import annotations
 import copy
 import itertools
 import logging
-import os
 from pathlib import Path
 
 import numpy as np
@@ -25,16 +23,13 @@ from recon.segmentation.weights import load_weights
 logger = logging.getLogger(__name__)
 
 LEARNED_SPEC = "learned"
-WEIGHTS_ENV_VAR = "BRANCH_SEGMENTER_WEIGHTS"
-DEFAULT_WEIGHTS_NAME = "segmenter.pt"
+# The shipped weights: package data beside this module.
+SHIPPED_WEIGHTS = Path(__file__).resolve().parent / "weights" / "segmenter.pt"
 
 
 def default_weights_path() -> Path:
-    """The shipped weights: ``$BRANCH_SEGMENTER_WEIGHTS`` or ``<repo>/models/segmenter.pt``."""
-    override = os.environ.get(WEIGHTS_ENV_VAR)
-    if override:
-        return Path(override)
-    return Path(__file__).resolve().parents[2] / "models" / DEFAULT_WEIGHTS_NAME
+    """The shipped weights (:data:`SHIPPED_WEIGHTS`)."""
+    return SHIPPED_WEIGHTS
 
 
 def fuse_batch_norm(model: nn.Module) -> nn.Module:

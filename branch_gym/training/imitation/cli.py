@@ -1,0 +1,131 @@
+"""The command line of a DAgger run (``python -m branch_gym.training.imitation``).
+
+Settings come from three layers: the defaults of :class:`ImitationConfig` (the one place they are
+set), a recipe file (``--config configs/dagger_v2.json``: the fields that differ), then the
+options given here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+from branch_gym.config_utils import load_config
+from branch_gym.env.versions import ENV_IDS
+from branch_gym.training.imitation.config import ImitationConfig
+from branch_gym.training.imitation.rounds import imitate
+
+EXIT_USAGE = 2
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The options; every setting's default is the recipe's, else ``ImitationConfig``'s."""
+    parser = argparse.ArgumentParser(
+        description="DAgger students of the privileged policy (an SB3 PPO network)",
+        epilog="An interrupted run resumes with the same command and --resume.",
+    )
+    parser.add_argument("--config", type=Path, help="a recipe file (configs/dagger_*.json)")
+    parser.add_argument("--out", type=Path, required=True, help="run folder")
+    parser.add_argument("--workers", type=int, default=2, help="labelling processes (default 2)")
+    parser.add_argument("--resume", action="store_true", help="continue the run in --out")
+    parser.add_argument("--env", choices=ENV_IDS, help="a discrete env id")
+    parser.add_argument("--tracker", choices=("lk", "oracle"))
+    parser.add_argument("--segmenter", help="gt | noisy:mild|moderate|severe | learned[:PATH]")
+    parser.add_argument(
+        "--all-tracking-frames",
+        action="store_true",
+        help="render every tracking frame (the default renders only the modeling frames with "
+        "the oracle tracker)",
+    )
+    parser.add_argument("--cnn-output-dim", type=int, help="image features of the network")
+    parser.add_argument(
+        "--recurrent",
+        action="store_true",
+        help="an LSTM student (sb3-contrib RecurrentPPO), fitted on whole episodes",
+    )
+    parser.add_argument("--seed", type=int, help="run seed (training trees, network init)")
+    parser.add_argument("--rounds", type=int)
+    parser.add_argument("--episodes", type=int, help="episodes (trees) per round")
+    parser.add_argument("--epochs", type=int, help="most passes over the labels per fit")
+    parser.add_argument("--batch-size", type=int)
+    parser.add_argument("--learning-rate", type=float)
+    parser.add_argument("--weight-decay", type=float)
+    parser.add_argument(
+        "--validation-fraction",
+        type=float,
+        help="labels held out for early stopping (0: none, every epoch runs)",
+    )
+    parser.add_argument(
+        "--continue-weights",
+        action="store_true",
+        help="fit each round from the previous round's weights, not from a fresh network",
+    )
+    parser.add_argument("--rotation-weight", type=float, help="loss weight of a rotation label")
+    parser.add_argument(
+        "--reference-value",
+        type=float,
+        metavar="S",
+        help="price-conditioned fit: rotation labels weigh rotation-weight * value / S",
+    )
+    parser.add_argument("--tree-offset", type=int, help="skip this many training trees")
+    return parser
+
+
+def config_from_args(args: argparse.Namespace) -> ImitationConfig:
+    """The run's configuration: defaults, then the recipe file, then the options given.
+
+    Raises:
+        FileNotFoundError: no such recipe file.
+        ValueError: a bad recipe or value (named).
+    """
+    config = load_config(ImitationConfig, args.config)
+    train = config.train
+    tracker = args.tracker or train.tracker
+    train_changes = {
+        "env_id": args.env,
+        "tracker": args.tracker,
+        "segmenter": args.segmenter,
+        "seed": args.seed,
+        "recurrent": True if args.recurrent else None,
+        # pose-only tracking frames need the oracle tracker
+        "render_tracking_frames": True if args.all_tracking_frames or tracker != "oracle" else None,
+    }
+    if args.cnn_output_dim is not None:
+        train_changes["ppo"] = replace(train.ppo, cnn_output_dim=args.cnn_output_dim)
+    train = replace(train, **{k: v for k, v in train_changes.items() if v is not None})
+    changes = {
+        "rounds": args.rounds,
+        "episodes": args.episodes,
+        "epochs": args.epochs,
+        "batch_size": args.batch_size,
+        "learning_rate": args.learning_rate,
+        "weight_decay": args.weight_decay,
+        "validation_fraction": args.validation_fraction,
+        "from_scratch": False if args.continue_weights else None,
+        "rotation_weight": args.rotation_weight,
+        "reference_value_s": args.reference_value,
+        "tree_offset": args.tree_offset,
+    }
+    return replace(config, train=train, **{k: v for k, v in changes.items() if v is not None})
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        config = config_from_args(args)
+        final = imitate(config, args.out, args.resume, args.workers, progress=True)
+    except (FileExistsError, FileNotFoundError, ValueError) as exc:
+        logging.getLogger(__name__).error("%s", exc)
+        return EXIT_USAGE
+    print(f"wrote {final}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

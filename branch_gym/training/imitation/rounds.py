@@ -1,0 +1,170 @@
+"""The DAgger round loop (:func:`imitate`): label, fit, save, log; an interrupted run resumes.
+
+Every round is saved in the run folder (its labels ``round_K.npz``, the student after it
+``model_round_K.zip``, a line of ``rounds.jsonl``), so an interrupted run resumes at the next
+round. Episodes run in ``workers`` processes on the run's training trees
+(:func:`branch_gym.training.seeds.train_seed_range`, after the first ``tree_offset`` of them).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+import logging
+import math
+import multiprocessing
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from agents.ppo import load_model
+from branch_gym.threads import pin_worker_threads
+from branch_gym.training.imitation.config import (
+    CONFIG_FILE,
+    FINAL_MODEL,
+    RESUMABLE_CHANGES,
+    ROUNDS_LOG,
+    ImitationConfig,
+)
+from branch_gym.training.imitation.data import RoundData, model_path, round_path
+from branch_gym.training.imitation.fit import (
+    fit_student,
+    new_student,
+    rotation_auc,
+    value_bounds_s,
+)
+from branch_gym.training.imitation.labels import episode_task, init_worker
+from recon.metrics import pooled_percent
+
+logger = logging.getLogger(__name__)
+
+# A fitted student whose rotation AUC on its own labels is below this has not learned them.
+COLLAPSED_AUC = 0.6
+
+
+def imitate(
+    config: ImitationConfig,
+    out: str | Path,
+    resume: bool = False,
+    workers: int = 2,
+    progress: bool = False,
+) -> Path:
+    """Run (or resume) DAgger; returns ``OUT/model.zip``, the student after the last round.
+
+    Raises:
+        FileExistsError: a new run in a folder that already holds one.
+        ValueError: resuming with another configuration; a corrupt round file (named).
+    """
+    pin_worker_threads()  # the fits run here while the workers label: one thread each
+    out = Path(out)
+    config_path = out / CONFIG_FILE
+    if config_path.exists() and not resume:
+        raise FileExistsError(f"{out} already holds an imitation run: pass --resume")
+    if resume and config_path.exists():
+        saved = ImitationConfig.from_dict(json.loads(config_path.read_text()))
+        old = {k: v for k, v in saved.to_dict().items() if k not in RESUMABLE_CHANGES}
+        if old != {k: v for k, v in config.to_dict().items() if k not in RESUMABLE_CHANGES}:
+            raise ValueError(
+                f"cannot resume {out} with another configuration (only "
+                f"{', '.join(RESUMABLE_CHANGES)} may change: they shape the fit, not the data)"
+            )
+    out.mkdir(parents=True, exist_ok=True)
+    config_path.write_text(json.dumps(config.to_dict(), indent=2))
+    rounds: list[RoundData] = []
+    done = 0
+    while model_path(out, done).exists() and done < config.rounds:
+        rounds.append(RoundData.load(round_path(out, done)))
+        done += 1
+    spaces_env = gym.make(config.train.env_id, **config.train.env_kwargs())
+    model = load_model(model_path(out, done - 1)) if done else new_student(config, spaces_env)
+    bounds = value_bounds_s(spaces_env)
+    bar = None
+    if progress:
+        bar = tqdm(total=config.rounds * config.episodes, initial=done * config.episodes)
+    context = concurrent.futures.ProcessPoolExecutor(
+        max_workers=workers,
+        initializer=init_worker,
+        initargs=(config.train.to_dict(),),
+        mp_context=_spawn_context(),
+    )
+    try:
+        with context as pool:
+            for round_index in range(done, config.rounds):
+                student_path = None if round_index == 0 else str(model_path(out, round_index - 1))
+                tasks = [
+                    (config.tree_seed(round_index, episode), student_path)
+                    for episode in range(config.episodes)
+                ]
+                results, summaries = [], []
+                for data, summary in pool.map(episode_task, tasks):
+                    results.append(data)
+                    summaries.append(summary)
+                    if bar is not None:
+                        bar.update(1)
+                round_data = RoundData.concatenate(results)
+                round_data.save(round_path(out, round_index))
+                rounds.append(round_data)
+                # The student that played this round, on labels it was not fitted on.
+                held_out_auc = math.nan if student_path is None else rotation_auc(model, round_data)
+                rng = np.random.default_rng([config.train.seed, round_index])
+                if config.from_scratch:
+                    model = new_student(config, spaces_env)
+                all_labels = RoundData.concatenate(rounds)
+                fit = fit_student(model, all_labels, config, rng, bounds)
+                fit["student_rotation_auc"] = held_out_auc
+                fit["train_rotation_auc"] = rotation_auc(model, all_labels)
+                if fit["train_rotation_auc"] < COLLAPSED_AUC:
+                    logger.warning(
+                        "round %d: the student ranks the expert's rotations on its own labels at "
+                        "an AUC of %.2f: its fit collapsed or has not converged (lower the "
+                        "learning rate or raise the epochs)",
+                        round_index,
+                        fit["train_rotation_auc"],
+                    )
+                model.save(model_path(out, round_index))
+                labels = len(round_data.expert_actions)
+                settings = {name: getattr(config, name) for name in RESUMABLE_CHANGES[1:]}
+                _log_round(out, round_index, student_path is None, summaries, fit, labels, settings)
+    finally:
+        spaces_env.close()
+        if bar is not None:
+            bar.close()
+    final = out / FINAL_MODEL
+    model.save(final)
+    return final
+
+
+def _log_round(
+    out: Path,
+    round_index: int,
+    expert_played: bool,
+    summaries: list[dict[str, Any]],
+    fit: dict[str, float],
+    labels: int,
+    fit_settings: dict[str, Any],
+) -> None:
+    n_gt = [s["n_gt"] for s in summaries]
+    row = {
+        "round": round_index,
+        "played_by": "expert" if expert_played else "student",
+        "episodes": len(summaries),
+        "labels": labels,
+        "agreement": float(np.mean([s["agreement"] for s in summaries])),
+        "expert_rotate_share": float(np.mean([s["expert_rotate_share"] for s in summaries])),
+        "rotations": float(np.mean([s["rotations"] for s in summaries])),
+        "scan_time_s": float(np.mean([s["scan_time_s"] for s in summaries])),
+        "missed_pct": pooled_percent([s["n_missed"] for s in summaries], n_gt),
+        **fit,
+        **fit_settings,
+    }
+    logger.info("round %d: %s", round_index, row)
+    with open(out / ROUNDS_LOG, "a") as handle:
+        handle.write(json.dumps(row) + "\n")
+
+
+def _spawn_context() -> Any:
+    """Fresh worker processes (no pybullet or torch state forked from this one)."""
+    return multiprocessing.get_context("spawn")
