@@ -57,7 +57,12 @@ from branch_gym.sim.scene.texture import (
 )
 from branch_gym.sim.scene.thin_mesh import merge_meshes, thin_tubes_mesh
 from branch_gym.sim.scene.tree_mesh import TubeMesh, write_obj
-from branch_gym.sim.scene.tree_scene import SceneConfig, TreeScene, scene_folder
+from branch_gym.sim.scene.tree_scene import (
+    SceneConfig,
+    TreeScene,
+    create_static_body,
+    scene_folder,
+)
 from branch_gym.sim.tree.details import DetailConfig
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 
@@ -273,23 +278,7 @@ class OrchardScene:
     def _add_static_body(self, visuals: list[int], labels: list[int]) -> int:
         if any(v < 0 for v in visuals):
             raise RuntimeError("pybullet could not load a mesh of the orchard row")
-        p = self.bullet.p
-        n_links = len(visuals) - 1
-        body = p.createMultiBody(
-            baseMass=0.0,
-            baseCollisionShapeIndex=-1,
-            baseVisualShapeIndex=visuals[0],
-            linkMasses=[0.0] * n_links,
-            linkCollisionShapeIndices=[-1] * n_links,
-            linkVisualShapeIndices=visuals[1:],
-            linkPositions=[[0.0, 0.0, 0.0]] * n_links,
-            linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
-            linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n_links,
-            linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
-            linkParentIndices=[0] * n_links,
-            linkJointTypes=[pybullet.JOINT_FIXED] * n_links,
-            linkJointAxis=[[0.0, 0.0, 1.0]] * n_links,
-        )
+        body = create_static_body(self.bullet, visuals)
         for k, label in enumerate(labels):
             self.label_of[(body, k - 1)] = label
         return body

@@ -53,6 +53,7 @@ __all__ = [
     "SceneConfig",
     "Tree",
     "TreeScene",
+    "create_static_body",
     "scene_folder",
 ]
 
@@ -220,22 +221,39 @@ class TreeScene:
                 raise RuntimeError(
                     f"pybullet could not load the mesh of branch label {first_label + k}"
                 )
-        n_links = len(meshes) - 1
-        body = p.createMultiBody(
-            baseMass=0.0,
-            baseCollisionShapeIndex=collisions[0],
-            baseVisualShapeIndex=visuals[0],
-            linkMasses=[0.0] * n_links,
-            linkCollisionShapeIndices=collisions[1:],
-            linkVisualShapeIndices=visuals[1:],
-            linkPositions=[[0.0, 0.0, 0.0]] * n_links,
-            linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
-            linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n_links,
-            linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
-            linkParentIndices=[0] * n_links,
-            linkJointTypes=[pybullet.JOINT_FIXED] * n_links,
-            linkJointAxis=[[0.0, 0.0, 1.0]] * n_links,
-        )
+        body = create_static_body(self.bullet, visuals, collisions)
         for k in range(len(meshes)):
             self.label_of[(body, k - 1)] = first_label + k  # k = 0 is the base (link -1)
         return body
+
+
+def create_static_body(
+    bullet: Bullet, visuals: list[int], collisions: list[int] | None = None
+) -> int:
+    """One static multi-link body: base = the first shape, a fixed link for each other one.
+
+    Args:
+        bullet: The world.
+        visuals: Visual shape ids, base first.
+        collisions: Collision shape ids in the same order (-1 for none); None: no collision.
+
+    Returns:
+        The body's unique id; link k - 1 carries ``visuals[k]``.
+    """
+    collisions = collisions or [-1] * len(visuals)
+    n_links = len(visuals) - 1
+    return bullet.p.createMultiBody(
+        baseMass=0.0,
+        baseCollisionShapeIndex=collisions[0],
+        baseVisualShapeIndex=visuals[0],
+        linkMasses=[0.0] * n_links,
+        linkCollisionShapeIndices=collisions[1:],
+        linkVisualShapeIndices=visuals[1:],
+        linkPositions=[[0.0, 0.0, 0.0]] * n_links,
+        linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
+        linkInertialFramePositions=[[0.0, 0.0, 0.0]] * n_links,
+        linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n_links,
+        linkParentIndices=[0] * n_links,
+        linkJointTypes=[pybullet.JOINT_FIXED] * n_links,
+        linkJointAxis=[[0.0, 0.0, 1.0]] * n_links,
+    )
