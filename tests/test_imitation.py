@@ -58,9 +58,11 @@ def test_the_fit_learns_a_rule_the_labels_follow():
     model = new_student(config)
     rng = np.random.default_rng(0)
     space = model.observation_space
+    space.seed(0)  # the other fields are seeded noise, the same on every machine
     n = 400
     observations = {key: np.stack([sub.sample() for _ in range(n)]) for key, sub in space.items()}
     observations["image"][:] = 0
+    observations["coverage"][:] = 0
     angle = rng.uniform(-1, 1, n).astype(np.float32)
     observations["vector"][:, VectorField.ANGLE] = angle
     labels = np.where(angle > 0.2, 2, 0).astype(np.int64)  # rotate to -22.5 deg when turned right
