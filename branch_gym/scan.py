@@ -32,6 +32,7 @@ from recon.config import ModelerConfig
 from recon.frame import Frame
 from recon.model import TreeModel
 from recon.modeler import IterationReport, Modeler, Outcome
+from recon.segmentation.flow import FramePairingConfig
 
 logger = logging.getLogger(__name__)
 
@@ -73,6 +74,11 @@ class ScanConfig:
         world: The simulated world; a name ("clean", the default, or "orchard": sky, row,
             trellis, camera model; :meth:`WorldConfig.preset`) stands for that preset with
             the paper's tree.
+        frame_pairing: Which earlier rendered frame a flow-picture segmenter
+            (``segmenter="learned..."`` with weights that read the flow picture) takes the
+            optical flow against: moved >= 7.5 mm and turned < 0.5 deg since (the authors'
+            code; :class:`recon.segmentation.flow.FramePairingConfig`). Unused by the other
+            segmenters.
     """
 
     speed_mps: float = 0.025
@@ -87,6 +93,7 @@ class ScanConfig:
     controller: FollowControllerConfig = field(default_factory=FollowControllerConfig)
     modeler: ModelerConfig = field(default_factory=ModelerConfig)
     world: WorldConfig = field(default_factory=WorldConfig)
+    frame_pairing: FramePairingConfig = field(default_factory=FramePairingConfig)
 
     def __post_init__(self) -> None:
         if isinstance(self.world, str):
@@ -113,6 +120,10 @@ class ScanConfig:
             )
         if self.lost_branch_iterations < 1:
             raise ValueError("ScanConfig.lost_branch_iterations must be >= 1")
+        if not isinstance(self.frame_pairing, FramePairingConfig):
+            raise ValueError(
+                f"ScanConfig.frame_pairing must be a FramePairingConfig, got {self.frame_pairing!r}"
+            )
 
     def replace(self, **changes: object) -> ScanConfig:
         """A copy with some fields changed."""
@@ -167,7 +178,7 @@ class ScanSession:
     def __init__(self, config: ScanConfig | None = None) -> None:
         self.config = config or ScanConfig()
         self.world = World(self.config.world)
-        self.sensor = Sensor(self.world, self.config.segmenter)
+        self.sensor = Sensor(self.world, self.config.segmenter, self.config.frame_pairing)
         self.intrinsics = self.sensor.intrinsics
         self.modeler = Modeler(make_tracker(self.config.tracker), self.config.modeler)
         controller_config = replace(self.config.controller, speed_mps=self.config.speed_mps)
@@ -284,16 +295,24 @@ class ScanSession:
         return True
 
     def _observe(self) -> None:
-        """Render and feed a frame when the modeler wants one."""
+        """Render and feed a frame when the modeler wants one.
+
+        Only a frame that runs an iteration is segmented: the modeler reads no other frame's
+        mask. A frame listener (a recording) gets every frame's mask.
+        """
         T = self.world.T_world_camera
         if not self.modeler.wants_frame(T):
             return
-        if not self.config.render_tracking_frames and not self.modeler.iteration_due(T):
+        iteration = self.modeler.iteration_due(T)
+        if not self.config.render_tracking_frames and not iteration:
             self._feed(self.sensor.pose_only(self.scan_time_s))
             return
-        report = self._feed(self.sensor.capture(self.scan_time_s))
+        segment = iteration or bool(self.frame_listeners)
+        report = self._feed(self.sensor.capture(self.scan_time_s, segment=segment))
         if report is None:
             return
+        if not segment:  # iteration_due() and update() disagree: the mask read was empty
+            raise RuntimeError("the modeler ran an iteration on a frame that was not segmented")
         self.reports.append(report)
         self._primary = self.modeler.model.primary  # the model changes only in an iteration
         if report.outcome is Outcome.CONSISTENT:

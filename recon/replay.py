@@ -15,6 +15,17 @@ OUT holds (``docs/replay.md``):
 * ``summary.json``: counts, seed, config, outcomes, median timings and the metrics (``--truth``).
 
 The output folder is written next to OUT and renamed when complete: a failed replay leaves nothing.
+
+Optical flow of a learned segmenter (``--segmenter learned[:PATH]``): a network that reads the
+paper's flow picture (``uses_flow_picture``) gets, per image frame, the recording's flow picture
+when it has one (a scan folder's ``"flow"`` / ``<image>_flow.png``, a bag's ``--flow-topic``;
+``recon.io.folder``) as ``flow_image``, else the earlier frame that
+:class:`recon.segmentation.flow.FramePairer` picks by the recorded camera poses (moved >= 7.5 mm
+and turned < 0.5 deg since) as ``previous_rgb``, else nothing (colours alone). Every image
+frame enters the pairing history. Recorded pictures are taken as RGB; pass
+``--flow-red-blue-swapped`` for pictures saved with ``cv2.imwrite`` of an RGB array (red and blue
+exchanged, as the authors' real pictures appear to be: ``recon/segmentation/flow.py``). Any
+other segmenter gets the previous image frame as ``previous_rgb``.
 """
 
 from __future__ import annotations
@@ -30,6 +41,7 @@ import time
 from collections import Counter
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -47,6 +59,9 @@ from recon.modeler import IterationReport, Modeler
 from recon.overlay import model_overlay
 from recon.plot3d import plot_model_3d
 from recon.tracking import LucasKanadeTracker, PointTracker
+
+if TYPE_CHECKING:  # recon.segmentation (torch) is imported only for a learned segmenter
+    from recon.segmentation.flow import FramePairer, FramePairingConfig
 
 logger = logging.getLogger(__name__)
 
@@ -93,6 +108,9 @@ class ReplayResult:
         out_dir: The output folder.
         files: Output file names.
         wall_time_s: Wall-clock time of the replay.
+        flow_inputs: A flow-picture segmenter's inputs, frames by kind (``"recorded"``: the
+            recording's flow picture, ``"paired"``: flow against a paired earlier frame,
+            ``"none"``: colours alone); empty for other segmenters.
     """
 
     model: TreeModel
@@ -105,6 +123,7 @@ class ReplayResult:
     out_dir: Path
     files: list[str]
     wall_time_s: float
+    flow_inputs: dict[str, int] = field(default_factory=dict)
 
     @property
     def n_skipped(self) -> int:
@@ -123,7 +142,8 @@ def load_segmenter(spec: str | None):
     """None for masks from the recording; ``learned`` / ``learned:PATH`` -> recon.segmentation.
 
     Returns:
-        None, or an object with ``segment(rgb, previous_rgb=None) -> (H, W) bool``.
+        None, or an object with ``segment(rgb, previous_rgb=None) -> (H, W) bool`` (a
+        :class:`recon.segmentation.LearnedSegmenter`).
 
     Raises:
         ValueError: an unknown spec.
@@ -260,6 +280,8 @@ def replay(
     config: ReplayConfig | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    flow_red_blue_swapped: bool = False,
+    pairing: FramePairingConfig | None = None,
 ) -> ReplayResult:
     """Run :class:`recon.modeler.Modeler` over a recorded scan and write the outputs.
 
@@ -268,13 +290,19 @@ def replay(
         out_dir: Output folder (written atomically; see the module docstring for its files).
         truth: Ground truth (TreeModel or a TreeGT JSON path) to score the model against.
         segmenter: None / "mask" (recorded masks), "learned[:PATH]", or an object with
-            ``segment(rgb, previous_rgb=None) -> (H, W) bool``.
+            ``segment(rgb, previous_rgb=None) -> (H, W) bool``; one whose
+            ``uses_flow_picture`` is true also takes ``flow_image=`` (module docstring).
         tracker: Point tracker name (``TRACKERS``).
         seed: Modeler seed; default: the recording's (``metadata.json``), else 0.
         modeler_config: Modeler thresholds; default: the recording's, else the defaults.
         config: Output settings.
         overwrite: Replace an existing ``out_dir``.
         progress: Show a tqdm progress bar.
+        flow_red_blue_swapped: The recorded flow pictures hold the colour wheel with red and
+            blue exchanged (written with ``cv2.imwrite`` of an RGB array): exchange them back
+            (:func:`recon.segmentation.flow.swap_red_blue`) before the segmenter sees them.
+        pairing: How a flow-picture segmenter's frames are paired by pose (default
+            ``FramePairingConfig()``, the authors' thresholds).
 
     Returns:
         The :class:`ReplayResult`.
@@ -308,29 +336,30 @@ def replay(
         )
     modeler = Modeler(make_tracker(tracker), modeler_config, seed=seed)
     intrinsics = source.intrinsics
+    flow = _FlowInputs.of(seg, pairing, flow_red_blue_swapped)
 
     reports: list[IterationReport] = []
     iteration_rows: list[dict] = []
     frame_rows: list[dict] = []
     skip_reasons: Counter[str] = Counter()
     camera_path: list[np.ndarray] = []
-    previous_rgb: np.ndarray | None = None
     n_fed = 0
     with atomic_output_dir(out_dir, overwrite) as tmp:
         video = OverlayVideo(tmp, (intrinsics.width, intrinsics.height), config)
-        frames = source.frames(load_masks=seg is None)
+        if flow.pairer is None:
+            frames = source.frames(load_masks=seg is None)
+        else:
+            frames = source.frames(load_masks=False, load_flow=True)
         bar = tqdm(frames, total=len(source), desc="replay", unit="frame", disable=not progress)
         last_outcome = "-"
         for loaded in bar:
             row = {"index": loaded.index, "time_s": loaded.time_s, "source": loaded.where}
-            frame, reason = _make_frame(loaded, intrinsics, seg, previous_rgb)
+            frame, reason = _make_frame(loaded, intrinsics, seg, flow)
             if frame is None:
                 skip_reasons[loaded.skip_kind or "unusable frame"] += 1
                 frame_rows.append({**row, "status": "skipped", "reason": reason})
                 logger.info("skipping frame %d (%s): %s", loaded.index, loaded.where, reason)
                 continue
-            if frame.has_image:
-                previous_rgb = frame.rgb
             report = modeler.update(frame)
             n_fed += 1
             camera_path.append(frame.T_world_camera[:3, 3].copy())
@@ -383,20 +412,74 @@ def replay(
             source, model, reports, len(frame_rows), n_fed, skip_reasons, metrics, seed,
             modeler_config, tracker, segmenter, files, wall,
         )  # fmt: skip
+        if flow.pairer is not None:
+            summary["flow_inputs"] = dict(flow.counts)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
     return ReplayResult(
         model, reports, len(frame_rows), n_fed, dict(skip_reasons), metrics, seed,
-        Path(out_dir), files, wall,
+        Path(out_dir), files, wall, dict(flow.counts),
     )  # fmt: skip
 
 
-def _make_frame(loaded: LoadedFrame, intrinsics, seg, previous_rgb):
+@dataclass
+class _FlowInputs:
+    """What a segmenter's optical-flow input is taken from, frame after frame.
+
+    Attributes:
+        pairer: The frame pairer of a flow-picture segmenter, else None (then the previous
+            image frame is the flow partner).
+        swap_red_blue: Exchange red and blue of the recorded flow pictures.
+        previous_rgb: (H, W, 3) uint8 previous image frame (segmenters without flow pictures).
+        counts: Frames by input kind (``ReplayResult.flow_inputs``).
+    """
+
+    pairer: FramePairer | None = None
+    swap_red_blue: bool = False
+    previous_rgb: np.ndarray | None = None
+    counts: Counter[str] = field(default_factory=Counter)
+
+    @classmethod
+    def of(
+        cls, seg: object | None, pairing: FramePairingConfig | None, swap_red_blue: bool
+    ) -> _FlowInputs:
+        """The flow inputs of segmenter ``seg`` (None: recorded masks)."""
+        if seg is None or not getattr(seg, "uses_flow_picture", False):
+            return cls()
+        from recon.segmentation.flow import FramePairer  # torch only for a learned segmenter
+
+        return cls(FramePairer(pairing), swap_red_blue)
+
+    def segment(self, seg, loaded: LoadedFrame) -> np.ndarray:
+        """(H, W) mask of an image frame (module docstring); the frame joins the history.
+
+        Args:
+            seg: The segmenter.
+            loaded: A usable image frame (``rgb``, ``T_world_camera``, maybe ``flow_image``).
+
+        Returns:
+            (H, W) bool (or 0/1) mask from the segmenter.
+        """
+        if self.pairer is None:
+            previous, self.previous_rgb = self.previous_rgb, loaded.rgb
+            return np.asarray(seg.segment(loaded.rgb, previous_rgb=previous))
+        partner = self.pairer.add(loaded.rgb, loaded.T_world_camera)
+        if loaded.flow_image is not None:
+            from recon.segmentation.flow import swap_red_blue
+
+            picture = swap_red_blue(loaded.flow_image) if self.swap_red_blue else loaded.flow_image
+            self.counts["recorded"] += 1
+            return np.asarray(seg.segment(loaded.rgb, flow_image=picture))
+        self.counts["none" if partner is None else "paired"] += 1
+        return np.asarray(seg.segment(loaded.rgb, previous_rgb=partner))
+
+
+def _make_frame(loaded: LoadedFrame, intrinsics, seg, flow: _FlowInputs):
     """(Frame, None) or (None, reason)."""
     if loaded.skip_reason is not None:
         return None, loaded.skip_reason
     mask = None
     if seg is not None and not loaded.pose_only:
-        mask = np.asarray(seg.segment(loaded.rgb, previous_rgb=previous_rgb))
+        mask = flow.segment(seg, loaded)
     try:
         return loaded.to_frame(intrinsics, mask), None
     except ValueError as error:
@@ -469,6 +552,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--segmenter", default="mask", help="'mask' (recorded masks), 'learned' or 'learned:PATH'"
     )
+    parser.add_argument(
+        "--flow-red-blue-swapped",
+        action="store_true",
+        help="the recorded flow pictures have red and blue exchanged (cv2.imwrite of an RGB "
+        "array, as the authors' real pictures): exchange them back (flow-picture segmenters)",
+    )
     parser.add_argument("--tracker", choices=TRACKERS, default="lk")
     parser.add_argument("--seed", type=int, help="modeler seed (default: the recording's, or 0)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
@@ -494,6 +583,7 @@ def main(argv: list[str] | None = None) -> int:
             seed=args.seed,
             overwrite=args.overwrite,
             progress=not args.no_progress,
+            flow_red_blue_swapped=args.flow_red_blue_swapped,
         )
     except (ScanFormatError, ReplayError, ImportError, FileExistsError, ValueError) as error:
         print(f"error: {error}", file=sys.stderr)

@@ -122,6 +122,7 @@ def write_bag(
     stamp_offsets_ns: dict[int, int] | None = None,
     info_intrinsics=None,
     n_frames: int | None = None,
+    flow_topic: str | None = None,
 ) -> list[int]:
     """Write a recorded scan folder as a ROS 2 bag, as the authors record them.
 
@@ -136,6 +137,8 @@ def write_bag(
             bag time (bad input: stamps out of order).
         info_intrinsics: CameraInfo intrinsics other than the scan's (bad input).
         n_frames: Write only the first frames (0: none, an empty image topic).
+        flow_topic: Also publish the folder's flow pictures (rgb8, with their image's stamp,
+            10 ms after it) on this topic.
 
     Returns:
         The image stamps (ns).
@@ -158,6 +161,9 @@ def write_bag(
         c_mask = None
         if mask_topic is not None:
             c_mask = writer.add_connection(mask_topic, image_type, typestore=ts)
+        c_flow = None
+        if flow_topic is not None:
+            c_flow = writer.add_connection(flow_topic, "sensor_msgs/msg/Image", typestore=ts)
         c_pose = None
         if pose_topic:
             c_pose = writer.add_connection(
@@ -169,7 +175,7 @@ def write_bag(
         )
         static = TF(transforms=[mount])
         writer.write(c_static, BAG_START_NS, ts.serialize_cdr(static, TF.__msgtype__))
-        for loaded in scan.frames():
+        for loaded in scan.frames(load_flow=flow_topic is not None):
             if n_frames is not None and loaded.index >= n_frames:
                 break
             t_ns = BAG_START_NS + round(loaded.time_s * 1e9)
@@ -190,6 +196,9 @@ def write_bag(
             else:
                 msg = image_msg(ts, loaded.rgb, stamp, "rgb8")
             writer.write(c_image, t_ns + 1000, ts.serialize_cdr(msg, image_type))
+            if c_flow is not None and loaded.flow_image is not None:
+                fmsg = image_msg(ts, loaded.flow_image, stamp, "rgb8")
+                writer.write(c_flow, t_ns + 10_000_000, ts.serialize_cdr(fmsg, fmsg.__msgtype__))
             if c_mask is not None:
                 mask = np.where(loaded.mask, 255, 0).astype(np.uint8)
                 if compressed:

@@ -481,6 +481,7 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     config = ScanConfig()
     before = config_to_dict(config)  # the config as published before the two fields existed
     del before["render_tracking_frames"], before["modeler"]["secondary_trust_redetected"]
+    del before["frame_pairing"]
     del before["world"]["orchard"], before["world"]["tree"]["architecture"]
     del before["world"]["tree"]["primary_base_height_m"]
     published = hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()[:16]

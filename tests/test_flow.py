@@ -25,6 +25,7 @@ from recon.segmentation.flow import (
     compute_flow,
     flow_picture,
     flow_to_picture,
+    flow_to_picture_fast,
     swap_red_blue,
 )
 
@@ -110,6 +111,37 @@ def test_unknown_flow_is_white_and_left_out_of_the_normalisation() -> None:
         assert (picture[y, x] == 255).all()
     assert (flow_to_picture(np.full((3, 3, 2), np.nan)) == 255).all()
     assert np.isnan(unknown[2, 3, 0])  # the input is not modified
+
+
+@pytest.mark.parametrize("name", DIRECTIONS)
+def test_fast_picture_codes_the_wheel_directions(name: str) -> None:
+    (u, v), _, rgb = DIRECTIONS[name]
+    flow = np.zeros((3, 4, 2), np.float32)
+    flow[1, 2] = np.array([u, v]) * 7.0 / math.hypot(u, v)
+    flow[0, 1] = flow[1, 2] / 2  # half way to white
+    picture = flow_to_picture_fast(flow)
+    assert np.abs(picture[1, 2].astype(int) - rgb).max() <= 1
+    assert (picture[0, 0] == 255).all()
+    half = 255 - (255 - np.asarray(rgb, float)) / 2
+    assert np.abs(picture[0, 1] - half).max() <= 1
+
+
+@pytest.mark.parametrize("scale", [0.01, 3.0, 250.0])
+def test_fast_picture_is_within_one_level_of_flow_vis(scale: float) -> None:
+    rng = np.random.default_rng(2)
+    flow = rng.normal(0.0, scale, (60, 80, 2)).astype(np.float32)
+    flow[5, 5], flow[6, 6], flow[7, 7] = (scale, 0.0), (-scale, 0.0), (0.0, -scale)  # the seam
+    flow[8, 8] = (np.nan, 1.0)
+    fast, reference = flow_to_picture_fast(flow), flow_to_picture(flow)
+    assert fast.dtype == np.uint8 and fast.shape == (60, 80, 3)
+    difference = np.abs(fast.astype(int) - reference.astype(int))
+    largest = np.unravel_index(np.nanargmax(np.hypot(flow[..., 0], flow[..., 1])), (60, 80))
+    difference[largest] = 0  # flow-vis sometimes darkens its largest pixel (its epsilon)
+    assert difference.max() <= 1
+    assert (fast[8, 8] == 255).all()
+    assert (flow_to_picture_fast(np.zeros((4, 5, 2), np.float32)) == 255).all()
+    with pytest.raises(ValueError, match="floating"):
+        flow_to_picture_fast(np.zeros((4, 5, 2), np.int32))
 
 
 @pytest.mark.parametrize("scale", [0.01, 0.5, 3.7, 250.0])

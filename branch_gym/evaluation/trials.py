@@ -158,8 +158,15 @@ def trial_path(out: Path, policy: str, seed: int) -> Path:
 # reproduces the earlier behaviour. ScanConfig.render_tracking_frames (the fast oracle mode):
 # True renders every frame, as every scan did before it existed.
 # ModelerConfig.secondary_trust_redetected: False is the rule every table was measured with.
+# ScanConfig.frame_pairing (FramePairingConfig's defaults): only flow-picture segmenters read it.
 HASH_NEUTRAL_DEFAULTS = {
     "render_tracking_frames": True,
+    "frame_pairing": {
+        "min_translation_m": 0.0075,
+        "max_rotation_deg": 0.5,
+        "history_travel_m": 0.05,
+        "max_history_frames": 128,
+    },
     "modeler.secondary_trust_redetected": False,
     "world.orchard": None,
     "world.tree.architecture": "paper",

@@ -1,4 +1,4 @@
-"""CLI: ``python -m branch_gym.segmenter_training generate|train|evaluate|all ...``.
+"""CLI: ``python -m branch_gym.segmenter_training generate|train|evaluate|export|score-real ...``.
 
 Examples::
 
@@ -7,6 +7,8 @@ Examples::
         --run runs/segmenter/run --seed 0 --export runs/segmenter.pt
     python -m branch_gym.segmenter_training evaluate \
         --weights recon/segmentation/weights/segmenter.pt
+    python -m branch_gym.segmenter_training score-real --data ../shared/data/real_dev \
+        --weights learned --out results.json --figure real.png
 
 Every command is resumable: ``generate`` skips finished shards, ``train`` continues from the
 run folder's checkpoint.
@@ -32,7 +34,21 @@ from branch_gym.segmenter_training.generate import (
     shard_path,
     write_shard,
 )
-from branch_gym.segmenter_training.train import export_checkpoint, train
+from branch_gym.segmenter_training.orchard_pairs import (
+    OrchardPairsConfig,
+    generate_orchard_shard,
+    load_orchard_shards,
+)
+from branch_gym.segmenter_training.real_frames import (
+    RealScoreConfig,
+    draw_score_figure,
+    format_scores,
+    load_real_frames,
+    score_hand_masks,
+    score_report,
+    score_segmenter,
+)
+from branch_gym.segmenter_training.train import export_checkpoint, pair_iou, train
 from recon.segmentation import load_segmenter
 
 logger = logging.getLogger("branch_gym.segmenter_training")
@@ -51,14 +67,37 @@ def _generate(args: argparse.Namespace) -> None:
         write_shard(shard_path(out, index), generate_shard(config, args.seed, index))
 
 
+def _generate_orchard(args: argparse.Namespace) -> None:
+    config = OrchardPairsConfig(
+        trees=args.trees, pairs_per_tree=args.pairs_per_tree, world=args.world
+    )
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "generate_config.json").write_text(
+        json.dumps(
+            {
+                "seed": args.seed,
+                "world": "orchard",
+                "evaluation": args.evaluation,
+                **config.to_dict(),
+            },
+            indent=2,
+        )
+    )
+    todo = [i for i in range(config.shards) if not shard_path(out, i).exists()]
+    for index in tqdm(todo, desc="shards", unit="shard"):
+        shard = generate_orchard_shard(config, args.seed, index, evaluation=args.evaluation)
+        write_shard(shard_path(out, index), shard)
+
+
 def _train(args: argparse.Namespace) -> None:
 
     base = TrainConfig()
-    net = replace(base.net, use_flow=args.flow)
+    net = replace(base.net, use_flow=args.flow or args.flow_picture, flow_picture=args.flow_picture)
     config = replace(base, net=net, steps=args.steps, batch_size=args.batch_size)
     train(
         config,
-        data_dir=Path(args.data),
+        data_dir=[Path(folder) for folder in args.data],
         run_dir=Path(args.run),
         seed=args.seed,
         validation_dir=Path(args.validation) if args.validation else None,
@@ -92,6 +131,44 @@ def _evaluate(args: argparse.Namespace) -> None:
         Path(args.out).write_text(json.dumps(results, indent=2))
 
 
+def _score_real(args: argparse.Namespace) -> None:
+    spec = args.weights
+    if spec != "learned" and not spec.startswith("learned:"):
+        spec = f"learned:{spec}"  # a plain weights path
+    frames = load_real_frames(Path(args.data), swap_flow_red_blue=not args.flow_as_stored)
+    config = RealScoreConfig()
+    segmenter = load_segmenter(spec)
+    use_flow = not args.no_flow and getattr(segmenter, "uses_flow_picture", True)
+    if not (use_flow or args.no_flow):
+        logger.warning("%s does not read flow pictures: scoring it on RGB only", spec)
+    scores = score_segmenter(segmenter, frames, use_flow, config)
+    hand = score_hand_masks(frames, config)
+    inputs = "RGB + flow picture" if use_flow else "RGB only"
+    tqdm.write(format_scores(f"segmenter {spec} ({inputs})", scores))
+    tqdm.write(format_scores("hand masks (upper bound of the 2D stage)", hand))
+    if args.out:
+        results = {"data": str(args.data), "weights": spec, "use_flow_picture": use_flow,
+                   "flow_as_stored": args.flow_as_stored, "config": config.to_dict(),
+                   "segmenter": score_report(scores), "hand_masks": score_report(hand)}  # fmt: skip
+        Path(args.out).write_text(json.dumps(results, indent=2))
+    if args.figure:
+        draw_score_figure(frames, scores, args.figure, hand_scores=hand)
+
+
+def _evaluate_pairs(args: argparse.Namespace) -> None:
+    import torch
+
+    torch.set_num_threads(1)
+    data = load_orchard_shards(Path(args.data))
+    results = {}
+    for weights in args.weights:
+        spec = weights if weights.startswith("learned") else f"learned:{weights}"
+        results[weights] = pair_iou(load_segmenter(spec), data)
+        tqdm.write(f"{weights}: {json.dumps(results[weights])}")
+    if args.out:
+        Path(args.out).write_text(json.dumps(results, indent=2))
+
+
 def _export(args: argparse.Namespace) -> None:
 
     step = export_checkpoint(Path(args.run), Path(args.out))
@@ -110,14 +187,30 @@ def main(argv: list[str] | None = None) -> int:
     gen.add_argument("--pairs-per-tree", type=int, default=GenerateConfig.pairs_per_tree)
     gen.add_argument("--trees-per-shard", type=int, default=GenerateConfig.trees_per_shard)
 
+    gor = sub.add_parser(
+        "generate-orchard", help="render orchard-world frame pairs with exact flow into shards"
+    )
+    gor.add_argument("--out", required=True)
+    gor.add_argument("--seed", type=int, default=0)
+    gor.add_argument("--trees", type=int, default=OrchardPairsConfig.trees)
+    gor.add_argument("--pairs-per-tree", type=int, default=OrchardPairsConfig.pairs_per_tree)
+    gor.add_argument("--world", default="orchard", choices=("orchard", "clean"))
+    gor.add_argument(
+        "--evaluation", action="store_true", help="trees of seeds 0..trees-1 (held out)"
+    )
+
     tr = sub.add_parser("train", help="train (resumes from --run)")
-    tr.add_argument("--data", required=True)
+    tr.add_argument("--data", required=True, nargs="+", help="shard folder(s)")
     tr.add_argument("--run", required=True)
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--validation", default=None, help="shard folder for validation IoU")
     tr.add_argument("--steps", type=int, default=TrainConfig.steps)
     tr.add_argument("--batch-size", type=int, default=TrainConfig.batch_size)
     tr.add_argument("--flow", action="store_true", help="RGB + optical flow input (ablation)")
+    tr.add_argument(
+        "--flow-picture", action="store_true",
+        help="RGB + the paper's flow picture, on orchard pairs (generate-orchard data)",
+    )  # fmt: skip
     tr.add_argument("--export", default=None, help="write final weights here (+ .config.json)")
     tr.add_argument("--max-minutes", type=float, default=None, help="stop (resumably) after")
 
@@ -128,13 +221,37 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--presets", nargs="+", default=["paper", "cluttered", "hard"])
     ev.add_argument("--out", default=None, help="write the results as JSON")
 
+    ep = sub.add_parser(
+        "evaluate-pairs", help="IoU of flow-picture segmenters on generate-orchard pairs"
+    )
+    ep.add_argument("--weights", nargs="+", required=True, help="'learned' or weights files")
+    ep.add_argument("--data", required=True, help="shards of generate-orchard --evaluation")
+    ep.add_argument("--out", default=None, help="write the results as JSON")
+
     ex = sub.add_parser("export", help="export a run's newest checkpoint as weights")
     ex.add_argument("--run", required=True)
     ex.add_argument("--out", required=True)
 
+    sr = sub.add_parser("score-real", help="score on real frames with hand masks (issue 15)")
+    sr.add_argument("--data", required=True, help="folder of N.png, N_flow.png, N_trunk_K.png ...")
+    sr.add_argument("--weights", default="learned", help="'learned', 'learned:PATH' or a PATH")
+    sr.add_argument("--no-flow", action="store_true", help="RGB only: no flow picture input")
+    sr.add_argument("--flow-as-stored", action="store_true",
+                    help="do not exchange red and blue of the recorded flow pictures")  # fmt: skip
+    sr.add_argument("--out", default=None, help="write the results as JSON")
+    sr.add_argument("--figure", default=None, help="write a picture grid of the results")
+
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(message)s")
-    commands = {"generate": _generate, "train": _train, "evaluate": _evaluate, "export": _export}
+    commands = {
+        "generate": _generate,
+        "generate-orchard": _generate_orchard,
+        "train": _train,
+        "evaluate": _evaluate,
+        "evaluate-pairs": _evaluate_pairs,
+        "export": _export,
+        "score-real": _score_real,
+    }
     commands[args.command](args)
     return 0
 

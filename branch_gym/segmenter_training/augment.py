@@ -235,6 +235,28 @@ def augment_pair(
             a = a * (classes[k] != CLASS_PRIMARY) * (classes[k] != CLASS_SECONDARY)
             frames[k] = frames[k] * (1 - a[..., None]) + c * a[..., None]
 
+    return camera_effects(frames, rng, config), classes
+
+
+def camera_effects(
+    frames: np.ndarray, rng: np.random.Generator, config: AugmentConfig
+) -> np.ndarray:
+    """Another camera's look on the frames of one scan.
+
+    Exposure, gamma, contrast, white balance, uneven light, blur, motion blur, noise and JPEG
+    are drawn once and applied to every frame (with a little exposure flicker; the noise is
+    drawn per frame).
+
+    Args:
+        frames: (K, H, W, 3) float32 or uint8 RGB frames in 0-255.
+        rng: Draws every setting.
+        config: Ranges and probabilities.
+
+    Returns:
+        (K, H, W, 3) uint8 frames.
+    """
+    frames = frames.astype(np.float32)
+    shape = frames.shape[1:3]
     # Photometric: the same camera settings for both frames, with a little flicker.
     exposure, gamma = _u(rng, config.exposure_range), _u(rng, config.gamma_range)
     contrast = _u(rng, config.contrast_range)
@@ -243,7 +265,7 @@ def augment_pair(
         gain = 0.6 + 0.8 * smooth_noise(rng, shape, _u(rng, (40, 120)))[..., None]
     else:
         gain = np.ones((*shape, 1), np.float32)
-    for k in range(2):
+    for k in range(len(frames)):
         x = frames[k] * balance * gain * (exposure * (1 + 0.02 * rng.standard_normal()))
         x = 255.0 * np.power(np.clip(x / 255.0, 0, 1), gamma)
         frames[k] = (x - x.mean()) * contrast + x.mean()
@@ -264,8 +286,8 @@ def augment_pair(
         if rng.random() < config.jpeg_probability
         else None
     )
-    out = np.empty(rgb.shape, np.uint8)
-    for k in range(2):
+    out = np.empty(frames.shape, np.uint8)
+    for k in range(len(frames)):
         x = frames[k]
         if sigma:
             x = cv2.GaussianBlur(x, (0, 0), sigma)
@@ -280,4 +302,4 @@ def augment_pair(
                 raise RuntimeError("OpenCV failed to JPEG-encode an augmented frame")
             x = cv2.imdecode(buf, cv2.IMREAD_COLOR)[..., ::-1]
         out[k] = x
-    return out, classes
+    return out

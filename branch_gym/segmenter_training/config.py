@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+from recon.segmentation.flow import DIS_PRESETS
 from recon.segmentation.inputs import FlowConfig
 from recon.segmentation.network import SegmenterNetConfig
 
@@ -123,13 +124,101 @@ class AugmentConfig:
 
 
 @dataclass(frozen=True)
+class FlowAugmentConfig:
+    """How a training frame's flow is made (module docstring, steps 2-4).
+
+    Attributes:
+        exact_probability: Use the renderer's exact flow (corrupted below); else DIS on the
+            augmented frames. Both, so that the network leans on no one method's artefacts
+            (the issue; our split).
+        dis_presets: DIS presets drawn for the computed flow (the segmenter's is ultrafast).
+        dis_weights: Their probabilities.
+        smooth_sigma_range_px: Gaussian smoothing of the exact flow (learned flows bleed
+            across edges: FlowNet2's are smooth, ``../shared/data/real_dev/*_flow.png``).
+        coarse_probability: Compute the exact flow at 1 / coarse_factor and upsample it
+            bilinearly (FlowNet2 predicts at a quarter of the resolution).
+        coarse_factor: That factor.
+        noise_fraction_range: Smooth noise added to the exact flow, as a fraction of its
+            largest magnitude.
+        drift_probability: Add a global flow (a camera turn the pairing let through; the real
+            pictures' tinted backgrounds).
+        drift_fraction_range: Its magnitude as a fraction of the largest flow.
+        mirror_probability: Mirror the flow vectors (v -> -v) before turning them.
+        no_flow_probability: Leave the picture white (a frame without a partner).
+    """
+
+    exact_probability: float = 0.5
+    dis_presets: tuple[str, ...] = ("ultrafast", "fast", "medium")
+    dis_weights: tuple[float, ...] = (0.5, 0.3, 0.2)
+    smooth_sigma_range_px: tuple[float, float] = (0.0, 3.0)
+    coarse_probability: float = 0.5
+    coarse_factor: int = 4
+    noise_fraction_range: tuple[float, float] = (0.0, 0.08)
+    drift_probability: float = 0.5
+    drift_fraction_range: tuple[float, float] = (0.0, 0.4)
+    mirror_probability: float = 0.5
+    no_flow_probability: float = 0.1
+
+    def __post_init__(self) -> None:
+        for name in (
+            "exact_probability",
+            "coarse_probability",
+            "drift_probability",
+            "mirror_probability",
+            "no_flow_probability",
+        ):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"FlowAugmentConfig.{name} must be in [0, 1], got {value!r}")
+        if not self.dis_presets or set(self.dis_presets) - set(DIS_PRESETS):
+            raise ValueError(
+                f"FlowAugmentConfig.dis_presets must name presets of {tuple(DIS_PRESETS)}, "
+                f"got {self.dis_presets!r}"
+            )
+        if len(self.dis_weights) != len(self.dis_presets) or min(self.dis_weights) < 0:
+            raise ValueError(
+                "FlowAugmentConfig.dis_weights must hold one non-negative weight per preset, "
+                f"got {self.dis_weights!r}"
+            )
+        if self.coarse_factor < 1:
+            raise ValueError(
+                f"FlowAugmentConfig.coarse_factor must be >= 1, got {self.coarse_factor!r}"
+            )
+
+
+@dataclass(frozen=True)
+class OrchardAugmentConfig:
+    """Everything random about a training frame of the flow-picture segmenter.
+
+    Attributes:
+        camera: Camera effects (shared with the RGB segmenter's randomisation).
+        flow: How the flow is made.
+        hue_shift_range_deg: Global hue shift of both frames (bark and sky colours).
+        saturation_range: Global saturation gain.
+        flip_probability: Horizontal flip (the flow's u flips with it).
+    """
+
+    camera: AugmentConfig = field(default_factory=AugmentConfig)
+    flow: FlowAugmentConfig = field(default_factory=FlowAugmentConfig)
+    hue_shift_range_deg: tuple[float, float] = (-15.0, 15.0)
+    saturation_range: tuple[float, float] = (0.5, 1.3)
+    flip_probability: float = 0.5
+
+    def to_dict(self) -> dict:
+        """Plain JSON-able values."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """The training loop.
 
     Attributes:
         net: Architecture.
         flow: Flow normalisation.
-        augment: Domain randomisation.
+        augment: Domain randomisation (RGB / flow-vector networks on clean-world pairs).
+        orchard: Randomisation of flow-picture networks (``net.flow_picture``) on orchard
+            pairs (:mod:`branch_gym.segmenter_training.orchard_augment`).
         steps: Optimiser steps.
         batch_size: Frames per step.
         crop_hw: Training crop (height, width) in pixels, multiples of the network's
@@ -147,6 +236,7 @@ class TrainConfig:
     net: SegmenterNetConfig = field(default_factory=SegmenterNetConfig)
     flow: FlowConfig = field(default_factory=FlowConfig)
     augment: AugmentConfig = field(default_factory=AugmentConfig)
+    orchard: OrchardAugmentConfig = field(default_factory=OrchardAugmentConfig)
     steps: int = 3000
     batch_size: int = 8
     crop_hw: tuple[int, int] = (160, 224)

@@ -8,12 +8,14 @@ would, and the same seed gives the same weights. A one-worker ``DataLoader`` pre
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
 import os
 import tempfile
 import time
+import typing
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,15 +26,19 @@ from torch.nn import functional
 from tqdm import tqdm
 
 from branch_gym.segmenter_training.augment import augment_pair
-from branch_gym.segmenter_training.config import AugmentConfig, TrainConfig
+from branch_gym.segmenter_training.config import TrainConfig
 from branch_gym.segmenter_training.generate import (
     CLASS_PRIMARY,
     CLASS_SECONDARY,
+    branch_mask,
     load_shards,
 )
-from recon.segmentation.inputs import FlowConfig, make_input
+from branch_gym.segmenter_training.orchard_augment import OrchardPairBatches
+from branch_gym.segmenter_training.orchard_pairs import load_orchard_shards
+from recon.segmentation.flow import flow_to_picture_fast
+from recon.segmentation.inputs import make_input
 from recon.segmentation.metrics import pooled_iou
-from recon.segmentation.network import SegmenterNet, SegmenterNetConfig, count_parameters
+from recon.segmentation.network import SegmenterNet, count_parameters
 from recon.segmentation.segmenter import LearnedSegmenter
 from recon.segmentation.weights import save_weights
 
@@ -117,6 +123,34 @@ def _lr_factor(step: int, config: TrainConfig) -> float:
     return 0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
 
 
+def pair_iou(segmenter: LearnedSegmenter, data: dict[str, np.ndarray]) -> dict[str, float]:
+    """Pooled IoU of a flow-picture segmenter on un-augmented pairs (``generate-orchard`` data).
+
+    Args:
+        segmenter: The segmenter.
+        data: Arrays of :func:`~branch_gym.segmenter_training.orchard_pairs.load_orchard_shards`.
+
+    Returns:
+        ``iou``: with the flow the segmenter computes itself from the earlier frame (DIS, as at
+        run time); ``iou_exact_flow``: with the picture of the renderer's exact flow;
+        ``iou_no_flow``: from the colours alone.
+    """
+    counts = {"iou": [0, 0], "iou_exact_flow": [0, 0], "iou_no_flow": [0, 0]}
+    for pair, flow, labels in zip(data["rgb"], data["flow"], data["labels"], strict=True):
+        truth = branch_mask(labels)
+        masks = {
+            "iou": segmenter.segment(pair[1], previous_rgb=pair[0]),
+            "iou_exact_flow": segmenter.segment(
+                pair[1], flow_image=flow_to_picture_fast(flow.astype(np.float32))
+            ),
+            "iou_no_flow": segmenter.segment(pair[1]),
+        }
+        for name, mask in masks.items():
+            counts[name][0] += int(np.count_nonzero(mask & truth))
+            counts[name][1] += int(np.count_nonzero(mask | truth))
+    return {name: pooled_iou(inter, union) for name, (inter, union) in counts.items()}
+
+
 def validation_iou(
     model: SegmenterNet, rgb: np.ndarray, classes: np.ndarray, config: TrainConfig
 ) -> dict[str, float]:
@@ -166,7 +200,7 @@ class TrainResult:
 
 def train(
     config: TrainConfig,
-    data_dir: Path,
+    data_dir: Path | list[Path],
     run_dir: Path,
     seed: int,
     validation_dir: Path | None = None,
@@ -179,7 +213,8 @@ def train(
 
     Args:
         config: Hyperparameters.
-        data_dir: Shards from ``generate``.
+        data_dir: Shards from ``generate`` (``generate-orchard`` for a flow-picture network,
+            which also takes a list of such folders, e.g. orchard and clean-world pairs).
         run_dir: Checkpoint and history folder (resumes from its checkpoint).
         seed: Seeds the weights and every batch.
         validation_dir: Shards for validation IoU (raw frames), or None.
@@ -193,8 +228,14 @@ def train(
     """
     torch.set_num_threads(config.threads)
     run_dir.mkdir(parents=True, exist_ok=True)
-    data = load_shards(data_dir)
-    val = load_shards(validation_dir) if validation_dir else None
+    orchard = config.net.flow_picture
+    load = load_orchard_shards if orchard else load_shards
+    folders = data_dir if isinstance(data_dir, list) else [data_dir]
+    if len(folders) > 1 and not orchard:
+        raise ValueError("only a flow-picture network trains on several data folders")
+    parts = [load(folder) for folder in folders]
+    data = {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
+    val = load(validation_dir) if validation_dir else None
     torch.manual_seed(seed)
     model = SegmenterNet(config.net)
     optimiser = torch.optim.AdamW(
@@ -228,7 +269,12 @@ def train(
             checkpoint_path,
         )  # fmt: skip
 
-    dataset = PairBatches(data["rgb"], data["classes"], config, seed)
+    if orchard:
+        dataset = OrchardPairBatches(
+            data, config.orchard, config.steps, config.batch_size, config.crop_hw, seed
+        )
+    else:
+        dataset = PairBatches(data["rgb"], data["classes"], config, seed)
     loader = torch.utils.data.DataLoader(
         torch.utils.data.Subset(dataset, range(start, config.steps)),
         batch_size=None, num_workers=workers, prefetch_factor=4 if workers else None,
@@ -257,8 +303,13 @@ def train(
                       "lr": optimiser.param_groups[0]["lr"]}  # fmt: skip
         if val is not None and (step % config.validate_every == 0 or step == config.steps):
             model.eval()
+            figures = (
+                pair_iou(LearnedSegmenter(model, config.flow, config.threshold), val)
+                if orchard
+                else validation_iou(model, val["rgb"], val["classes"], config)
+            )
             record = {**(record or {"step": step, "loss": value, "loss_smooth": running}),
-                      **validation_iou(model, val["rgb"], val["classes"], config)}  # fmt: skip
+                      **figures}  # fmt: skip
             model.train()
             bar.write(f"step {step}: {json.dumps(record)}")
         if record is not None:
@@ -320,20 +371,30 @@ def export_checkpoint(run_dir: Path, path: Path) -> int:
         The checkpoint's step.
     """
     state = torch.load(Path(run_dir) / CHECKPOINT_NAME, map_location="cpu", weights_only=False)
-    cfg = state["config"]
-    net = SegmenterNetConfig.from_dict(cfg["net"])
-    config = TrainConfig(
-        net=net, flow=FlowConfig(**cfg["flow"]),
-        augment=AugmentConfig(**{k: tuple(v) if isinstance(v, list) else v
-                                 for k, v in cfg["augment"].items()}),
-        **{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()
-           if k not in ("net", "flow", "augment")},
-    )  # fmt: skip
-    model = SegmenterNet(net)
+    config = dataclass_from_dict(TrainConfig, state["config"])
+    model = SegmenterNet(config.net)
     model.load_state_dict(state["model"])
     model.eval()
     export(model, config, state["seed"], state["history"], path, None, None, state["step"])
     return int(state["step"])
+
+
+def dataclass_from_dict(cls: type, data: dict) -> object:
+    """The (nested, frozen) dataclass ``cls`` of a :func:`dataclasses.asdict` dict.
+
+    Fields that are dataclasses are rebuilt recursively and lists become tuples; keys the
+    class does not know raise TypeError (the constructor's).
+    """
+    hints = typing.get_type_hints(cls)
+    values = {}
+    for key, value in data.items():
+        kind = hints.get(key)
+        if dataclasses.is_dataclass(kind) and isinstance(value, dict):
+            value = dataclass_from_dict(kind, value)
+        elif isinstance(value, list):
+            value = tuple(value)
+        values[key] = value
+    return cls(**values)
 
 
 def plot_curve(history: list[dict], path: Path) -> None:

@@ -25,7 +25,9 @@ def convert(
     """Write the usable frames of ``source`` as a scan folder (undistorted, no distortion left).
 
     Skipped frames (no pose, no mask, ...) are not written; they are counted in the returned
-    report and listed in the folder's ``metadata.json`` under ``"skipped"``.
+    report and listed in the folder's ``metadata.json`` under ``"skipped"``. Recorded
+    optical-flow pictures (a bag's ``flow_topic``) are written as ``flow/NNNNNN.png``, colours
+    as decoded.
 
     Args:
         source: A :class:`recon.io.ScanFolder` or :class:`recon.io.rosbag.BagSource`.
@@ -40,7 +42,7 @@ def convert(
     camera = CameraModel(source.intrinsics)  # images are written undistorted
     skipped: list[dict] = []
     with ScanWriter(out_dir, camera, image_format, jpeg_quality, overwrite) as writer:
-        for loaded in source.frames():
+        for loaded in source.frames(load_flow=True):
             if loaded.skip_reason is not None:
                 skipped.append(
                     {
@@ -51,7 +53,9 @@ def convert(
                     }
                 )
                 continue
-            writer.add(loaded.time_s, loaded.T_world_camera, loaded.rgb, loaded.mask)
+            writer.add(
+                loaded.time_s, loaded.T_world_camera, loaded.rgb, loaded.mask, loaded.flow_image
+            )
         writer.metadata.update(
             {"imported_from": source.name, "source": source.metadata, "skipped": skipped}
         )

@@ -6,14 +6,26 @@ Layout (``docs/replay.md`` is the full specification)::
       camera.json      {"width", "height", "fx", "fy", "cx", "cy", "distortion_model", "distortion"}
       frames.jsonl     one JSON object per line and frame, in time order:
                        {"time": s, "T_world_camera": 4x4 rows, "image": "images/000000.png",
-                        "mask": "masks/000000.png"}      ("mask" optional, "image" null = pose only)
+                        "mask": "masks/000000.png", "flow": "flow/000000.png"}
+                       ("mask" and "flow" optional, "image" null = pose only)
       images/          PNG or JPEG colour images (raw, i.e. still distorted)
       masks/           optional PNG masks, non-zero = branch
+      flow/            optional optical-flow pictures (colour wheel, any size; see below)
       metadata.json    optional: modeler seed and config, ground truth file, provenance
       truth.json       optional ground truth (``branch_gym`` TreeGT JSON)
 
 :class:`ScanWriter` writes a scan (into a temp folder renamed on success: never half written);
 :class:`ScanFolder` validates and reads one, undistorting images and masks.
+
+Optical-flow pictures (for a segmenter that reads them, ``recon.segmentation``): a frame's
+``"flow"`` names its picture; without that field a file ``<image without suffix>_flow.png``
+beside the image is taken when it exists (``images/000000_flow.png``, the layout of the
+authors' real frames ``N.png`` + ``N_flow.png``). A picture is read as an image and converted
+BGR -> RGB (what ``cv2.imwrite`` of a BGR array stores); one written with ``cv2.imwrite`` of an
+RGB array has red and blue exchanged, which the replay undoes on request
+(``recon.replay --flow-red-blue-swapped``). A picture of another size than the image is resized
+to it (``cv2.INTER_AREA``), then undistorted like the image (bilinear; the flow vectors it codes
+are not re-projected).
 """
 
 from __future__ import annotations
@@ -84,6 +96,9 @@ class LoadedFrame:
         mask: (H, W) bool undistorted mask, or None (no mask recorded).
         skip_reason: Why the frame cannot be used, or None.
         skip_kind: The reason's category for counting ("no pose", "cannot read image", ...).
+        flow_image: (H, W, 3) uint8 RGB optical-flow picture of the frame as recorded (resized
+            to the image and undistorted), or None: none recorded, or not asked for
+            (``frames(load_flow=False)``).
     """
 
     index: int
@@ -94,10 +109,11 @@ class LoadedFrame:
     mask: np.ndarray | None = None
     skip_reason: str | None = None
     skip_kind: str | None = None
+    flow_image: np.ndarray | None = None
 
     def skip(self, kind: str, reason: str) -> LoadedFrame:
-        """Mark the frame unusable (image, mask and pose dropped); returns it."""
-        self.rgb = self.mask = self.T_world_camera = None
+        """Mark the frame unusable (image, mask, flow picture and pose dropped); returns it."""
+        self.rgb = self.mask = self.T_world_camera = self.flow_image = None
         self.skip_kind, self.skip_reason = kind, reason
         return self
 
@@ -174,6 +190,33 @@ def mask_from_array(raw: np.ndarray, threshold: int) -> np.ndarray:
     return raw > (0 if raw.max(initial=0) <= 1 else threshold)
 
 
+def flow_picture_from_array(
+    image: np.ndarray, width: int, height: int, undistorter: Undistorter
+) -> np.ndarray:
+    """A recorded flow picture on the frame's grid: resized (INTER_AREA), then undistorted.
+
+    Args:
+        image: (h, w, 3) uint8 RGB picture as recorded (any size).
+        width: Width (px) of the raw frames.
+        height: Height (px) of the raw frames.
+        undistorter: The frames' undistorter.
+
+    Returns:
+        (height, width, 3) uint8 RGB picture.
+
+    Raises:
+        ValueError: ``image`` is not an (h, w, 3) uint8 array.
+    """
+    if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(
+            f"a flow picture must be an (H, W, 3) uint8 colour image, got {image.dtype} "
+            f"{image.shape}"
+        )
+    if image.shape[:2] != (height, width):
+        image = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+    return undistorter.image(image)
+
+
 def _load_json(path: Path) -> object:
     if not path.is_file():
         raise ScanFormatError(f"{path}: file not found")
@@ -209,6 +252,8 @@ class FrameRecord:
         T_world_camera: (4, 4) pose.
         image: Image path relative to the scan folder, or None (pose-only frame).
         mask: Mask path relative to the scan folder, or None.
+        flow: Optical-flow picture path relative to the scan folder (``"flow"``), or None
+            (then ``<image without suffix>_flow.png`` if it exists, module docstring).
     """
 
     index: int
@@ -217,6 +262,7 @@ class FrameRecord:
     T_world_camera: np.ndarray
     image: str | None
     mask: str | None
+    flow: str | None = None
 
 
 def parse_frames(path: Path, config: ScanFormatConfig) -> list[FrameRecord]:
@@ -254,18 +300,20 @@ def parse_frames(path: Path, config: ScanFormatConfig) -> list[FrameRecord]:
             T = as_rigid_pose(data["T_world_camera"], config.rigid_tolerance)
         except ValueError as error:
             raise ScanFormatError(f"{where}: {error}") from None
-        image, mask = data.get("image"), data.get("mask")
-        for key, value in (("image", image), ("mask", mask)):
+        image, mask, flow = data.get("image"), data.get("mask"), data.get("flow")
+        for key, value in (("image", image), ("mask", mask), ("flow", flow)):
             if value is not None and not (isinstance(value, str) and value):
                 raise ScanFormatError(f"{where}: {key} must be a path string or null")
         if image is None and mask is not None:
             raise ScanFormatError(f"{where}: a mask without an image")
+        if image is None and flow is not None:
+            raise ScanFormatError(f"{where}: a flow picture without an image")
         if records and not time_s > records[-1].time_s:
             raise ScanFormatError(
                 f"{where}: time {time_s} s is not after the previous frame's "
                 f"{records[-1].time_s} s: times must increase"
             )
-        records.append(FrameRecord(len(records), number, float(time_s), T, image, mask))
+        records.append(FrameRecord(len(records), number, float(time_s), T, image, mask, flow))
     if not records:
         raise ScanFormatError(f"{path}: no frames")
     return records
@@ -349,11 +397,30 @@ class ScanFolder:
                     missing.append(f"{key} {self.path / name} ({FRAMES_FILE} line {r.line})")
         return missing
 
-    def frames(self, load_masks: bool = True) -> Iterator[LoadedFrame]:
+    def flow_path(self, record: FrameRecord) -> Path | None:
+        """The flow picture of a frame: its ``"flow"``, else ``<image>_flow.png`` if present.
+
+        Returns:
+            The path (named ones whether they exist or not), or None: no image, or none named
+            and no ``_flow.png`` beside the image.
+        """
+        if record.flow is not None:
+            return self.path / record.flow
+        if record.image is None:
+            return None
+        image = self.path / record.image
+        beside = image.with_name(f"{image.stem}_flow.png")
+        return beside if beside.is_file() else None
+
+    def frames(self, load_masks: bool = True, load_flow: bool = False) -> Iterator[LoadedFrame]:
         """Decode the frames in time order.
 
         Args:
             load_masks: Read the mask files (False when a segmenter replaces them).
+            load_flow: Read the optical-flow pictures into :attr:`LoadedFrame.flow_image`
+                (module docstring). A named picture that is missing or unreadable raises
+                :class:`ScanFormatError`; with ``skip_bad_frames`` it is logged and the frame
+                keeps no picture (it stays usable).
 
         Yields:
             :class:`LoadedFrame` per line; bad frames with a ``skip_reason`` when
@@ -400,7 +467,25 @@ class ScanFolder:
                 yield out.skip(kind, problem)
                 continue
             out.rgb, out.mask = rgb, mask
+            if load_flow:
+                out.flow_image = self._read_flow(r, where)
             yield out
+
+    def _read_flow(self, record: FrameRecord, where: str) -> np.ndarray | None:
+        """(H, W, 3) uint8 RGB flow picture of a frame (module docstring), or None."""
+        path = self.flow_path(record)
+        if path is None:
+            return None
+        bgr = cv2.imread(str(path), cv2.IMREAD_COLOR) if path.is_file() else None
+        if bgr is None:
+            problem = f"cannot read flow picture {path} ({where}, frame {record.index})"
+            if not self.skip_bad_frames:
+                raise ScanFormatError(problem)
+            logger.warning("frame %d has no flow picture: %s", record.index, problem)
+            return None
+        k = self.camera.intrinsics
+        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+        return flow_picture_from_array(rgb, k.width, k.height, self.undistorter)
 
 
 class ScanWriter:
@@ -503,6 +588,7 @@ class ScanWriter:
         T_world_camera: np.ndarray,
         rgb: np.ndarray | None = None,
         mask: np.ndarray | None = None,
+        flow_image: np.ndarray | None = None,
     ) -> None:
         """Append one frame.
 
@@ -511,9 +597,13 @@ class ScanWriter:
             T_world_camera: (4, 4) rigid camera pose.
             rgb: (H, W, 3) uint8 image matching the camera, or None for a pose-only frame.
             mask: (H, W) bool mask, or None.
+            flow_image: (h, w, 3) uint8 RGB optical-flow picture of the frame (any size), or
+                None; written as ``flow/NNNNNN.png`` with its colours as given (read back
+                as RGB, no red-blue exchange).
 
         Raises:
-            ValueError: non-increasing time, a non-rigid pose, wrong image or mask size.
+            ValueError: non-increasing time, a non-rigid pose, wrong image or mask size, or a
+                flow picture that is not (h, w, 3) uint8 or has no image.
         """
         self._require_open()
         index = self.n_frames
@@ -549,6 +639,19 @@ class ScanWriter:
             name = f"masks/{index:06d}.png"
             self._imwrite(name, np.where(mask.astype(bool), 255, 0).astype(np.uint8), [])
             line["mask"] = name
+        if flow_image is not None:
+            if rgb is None:
+                raise ValueError(f"frame {index}: a flow picture without an image")
+            flow_image = np.asarray(flow_image)
+            if flow_image.ndim != 3 or flow_image.shape[2] != 3 or flow_image.dtype != np.uint8:
+                raise ValueError(
+                    f"frame {index}: flow_image must be (h, w, 3) uint8, got "
+                    f"{flow_image.shape} {flow_image.dtype}"
+                )
+            name = f"flow/{index:06d}.png"
+            (self.tmp_dir / "flow").mkdir(exist_ok=True)
+            self._imwrite(name, cv2.cvtColor(flow_image, cv2.COLOR_RGB2BGR), [])
+            line["flow"] = name
         assert self._lines is not None
         self._lines.write(json.dumps(line) + "\n")
         self._last_time = float(time_s)

@@ -15,7 +15,11 @@ authors' recordings, reference.md):
   interpolated to the image time (linear translation, slerp rotation); or a
   ``geometry_msgs/msg/PoseStamped`` topic (the camera optical frame's pose in its header frame);
 * masks: an image topic (the authors record ``/image_mask``), matched to images by stamp; or none
-  (then a segmenter makes them, see ``recon.replay``).
+  (then a segmenter makes them, see ``recon.replay``);
+* optical-flow pictures (optional, ``flow_topic``): an image topic of colour-wheel pictures
+  (Image rgb8/bgr8/rgba8/bgra8, decoded to RGB by the encoding, or CompressedImage), matched to
+  images by stamp; resized to the image (``cv2.INTER_AREA``) and undistorted like it. An image
+  without a picture is not skipped: it has none (a segmenter then pairs frames instead).
 
 A frame whose pose cannot be interpolated within the tolerances, or with no matching mask, is
 yielded as skipped with the reason (the replay counts and reports it).
@@ -37,7 +41,13 @@ from scipy.spatial.transform import Rotation
 
 from recon.camera import CameraIntrinsics, invert_pose
 from recon.io.distortion import CameraModel, Undistorter, canonical_distortion_model
-from recon.io.folder import LoadedFrame, ScanFormatConfig, ScanFormatError, mask_from_array
+from recon.io.folder import (
+    LoadedFrame,
+    ScanFormatConfig,
+    ScanFormatError,
+    flow_picture_from_array,
+    mask_from_array,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -67,6 +77,10 @@ class BagConfig:
         mask_tolerance_s: A mask belongs to the image whose stamp is within this (masks are
             stamped with their image's header by the authors' segmenter).
         typestore: rosbags type store for bags without message definitions.
+        flow_topic: Optical-flow pictures of the images (Image or CompressedImage, colour
+            wheel), or None (default: none recorded). Read only when a segmenter uses them.
+        flow_tolerance_s: A flow picture belongs to the image whose stamp is within this (our
+            choice: as ``mask_tolerance_s``, pictures stamped with their image's header).
     """
 
     image_topic: str = "/camera/color/image_raw"
@@ -81,9 +95,12 @@ class BagConfig:
     max_interpolation_gap_s: float = 0.5
     mask_tolerance_s: float = 0.005
     typestore: str = "ros2_humble"
+    flow_topic: str | None = None
+    flow_tolerance_s: float = 0.005
 
     def __post_init__(self) -> None:
-        for name in ("pose_tolerance_s", "max_interpolation_gap_s", "mask_tolerance_s"):
+        names = ("pose_tolerance_s", "max_interpolation_gap_s", "mask_tolerance_s")
+        for name in (*names, "flow_tolerance_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"BagConfig.{name} must be >= 0, got {value}")
@@ -454,10 +471,13 @@ class BagSource:
         self._mask_connections = []
         if cfg.mask_topic is not None:
             self._mask_connections = self._topic(reader, cfg.mask_topic, IMAGE_TYPES)
+        flow_connections = []
+        if cfg.flow_topic is not None:
+            flow_connections = self._topic(reader, cfg.flow_topic, IMAGE_TYPES)
         self.tf = TransformTree()
         pose_samples: list = []
         pose_parent: str | None = None
-        wanted = list(info_connections) + list(self._mask_connections)
+        wanted = list(info_connections) + list(self._mask_connections) + flow_connections
         if cfg.pose_topic is not None:
             wanted += self._topic(reader, cfg.pose_topic, (POSE_TYPE,))
         else:
@@ -476,6 +496,7 @@ class BagSource:
             wanted += tf + static
         self.camera: CameraModel | None = None
         self._mask_stamps: list[int] = []
+        flow_stamps: list[int] = []
         for connection, t_bag, raw in reader.messages(connections=wanted):
             msg = reader.deserialize(raw, connection.msgtype)
             topic = connection.topic
@@ -484,6 +505,8 @@ class BagSource:
                     self.camera = camera_from_info(msg, f"{self.path}: topic {topic!r}")
             elif topic == cfg.mask_topic:
                 self._mask_stamps.append(stamp_ns(msg.header, t_bag))
+            elif topic == cfg.flow_topic:
+                flow_stamps.append(stamp_ns(msg.header, t_bag))
             elif topic == cfg.pose_topic:
                 p, o = msg.pose.position, msg.pose.orientation
                 pose_parent = msg.header.frame_id.lstrip("/")
@@ -515,9 +538,8 @@ class BagSource:
             topics = f"{cfg.tf_topic} + {cfg.tf_static_topic}"
             self.tf.check_chain(cfg.world_frame.lstrip("/"), cfg.camera_frame.lstrip("/"), topics)
             self.metadata["pose_source"] = f"{topics}: {cfg.world_frame} -> {cfg.camera_frame}"
-        order = np.argsort(self._mask_stamps, kind="stable")
-        self._mask_sorted = np.asarray(self._mask_stamps, np.int64)[order]
-        self._mask_order = order
+        self._mask_stamps_index = _StampIndex(self._mask_stamps)
+        self._flow_stamps_index = _StampIndex(flow_stamps)
         self.metadata["camera"] = self.camera.to_dict()
 
     # ------------------------------------------------------------------ frames
@@ -533,30 +555,35 @@ class BagSource:
 
     def _mask_index(self, t_ns: int) -> int | None:
         """Index (in bag order) of the mask stamped nearest ``t_ns`` within the tolerance."""
-        stamps = self._mask_sorted
-        if len(stamps) == 0:
-            return None
-        i = int(np.searchsorted(stamps, t_ns))
-        best = min(
-            (j for j in (i - 1, i) if 0 <= j < len(stamps)), key=lambda j: abs(stamps[j] - t_ns)
-        )
-        if abs(int(stamps[best]) - t_ns) > round(self.config.mask_tolerance_s * 1e9):
-            return None
-        return int(self._mask_order[best])
+        return self._mask_stamps_index.nearest(t_ns, self.config.mask_tolerance_s)
 
-    def frames(self, load_masks: bool = True) -> Iterator[LoadedFrame]:
+    def _flow_index(self, t_ns: int) -> int | None:
+        """Index (in bag order) of the flow picture stamped nearest ``t_ns`` within tolerance."""
+        return self._flow_stamps_index.nearest(t_ns, self.config.flow_tolerance_s)
+
+    def frames(self, load_masks: bool = True, load_flow: bool = False) -> Iterator[LoadedFrame]:
         """Decode the images in order, with pose and mask (see :class:`LoadedFrame`).
+
+        Args:
+            load_masks: Read the mask topic (False when a segmenter replaces the masks).
+            load_flow: Read the flow topic (``BagConfig.flow_topic``, if set) into
+                :attr:`LoadedFrame.flow_image`; an image with no picture within
+                ``flow_tolerance_s`` keeps none.
 
         Raises:
             ScanFormatError: image stamps going back in time, an undecodable image or one whose
-                size disagrees with the CameraInfo.
+                size disagrees with the CameraInfo, or a flow picture that is not colour.
         """
         cfg = self.config
         load_masks = load_masks and self.has_masks
+        load_flow = load_flow and cfg.flow_topic is not None
         masks: dict[int, np.ndarray] = {}
-        pending: deque[tuple[LoadedFrame, int]] = deque()  # images waiting for their mask
+        flows: dict[int, np.ndarray] = {}
+        # images waiting for their mask and flow picture (bag indices, -1: none needed)
+        pending: deque[tuple[LoadedFrame, int, int]] = deque()
         topics = {cfg.image_topic} | ({cfg.mask_topic} if load_masks else set())
-        index, mask_count = 0, 0
+        topics |= {cfg.flow_topic} if load_flow else set()
+        index, mask_count, flow_count = 0, 0, 0
         last_ns: int | None = None
         with self._open() as reader:  # connections belong to their reader: select them anew
             connections = [c for c in reader.connections if c.topic in topics]
@@ -567,6 +594,10 @@ class BagSource:
                     where = f"topic {cfg.mask_topic!r} message {mask_count}"
                     masks[mask_count] = self._decode(msg, connection.msgtype, where, mask=True)
                     mask_count += 1
+                elif connection.topic == cfg.flow_topic and load_flow:
+                    where = f"topic {cfg.flow_topic!r} message {flow_count}"
+                    flows[flow_count] = self._decode_flow(msg, connection.msgtype, where)
+                    flow_count += 1
                 else:
                     where = f"topic {cfg.image_topic!r} message {index}"
                     frame = LoadedFrame(index, t_ns * 1e-9, where)
@@ -575,7 +606,7 @@ class BagSource:
                             f"{self.path}: {where}: stamp {t_ns * 1e-9:.6f} s is before the "
                             f"previous image's {last_ns * 1e-9:.6f} s: times must increase"
                         )
-                    needed = -1
+                    needed = flow_needed = -1
                     if last_ns is not None and t_ns == last_ns:
                         frame.skip("duplicate image stamp", "duplicate image stamp")
                     else:
@@ -595,21 +626,45 @@ class BagSource:
                                     )
                                 else:
                                     needed = found
+                            if load_flow and frame.skip_reason is None:
+                                picture = self._flow_index(t_ns)
+                                flow_needed = -1 if picture is None else picture
                     last_ns = t_ns
                     index += 1
-                    pending.append((frame, needed))
-                while pending and (pending[0][1] < 0 or pending[0][1] in masks):
-                    frame, needed = pending.popleft()
+                    pending.append((frame, needed, flow_needed))
+                while pending and _arrived(pending[0], masks, flows):
+                    frame, needed, flow_needed = pending.popleft()
                     if needed >= 0:
                         frame.mask = masks[needed]
+                    if flow_needed >= 0:
+                        frame.flow_image = flows[flow_needed]
                     yield frame
-                    if needed >= 0:  # drop the masks no waiting image needs (stamps increase)
-                        still = {n for _, n in pending}
-                        for m in [m for m in masks if m <= needed and m not in still]:
-                            del masks[m]
-            for frame, needed in pending:  # masks that never arrived
-                reason = f"mask {needed} on {cfg.mask_topic!r} missing from the bag"
-                yield frame.skip("no mask", reason)
+                    # drop what no waiting image needs (stamps increase)
+                    _drop_used(masks, needed, {n for _, n, _ in pending})
+                    _drop_used(flows, flow_needed, {n for _, _, n in pending})
+            for frame, needed, flow_needed in pending:  # masks or pictures that never arrived
+                if needed >= 0 and needed not in masks:
+                    reason = f"mask {needed} on {cfg.mask_topic!r} missing from the bag"
+                    yield frame.skip("no mask", reason)
+                    continue
+                if needed >= 0:
+                    frame.mask = masks[needed]
+                frame.flow_image = flows.get(flow_needed)
+                yield frame
+
+    def _decode_flow(self, msg, msgtype: str, where: str) -> np.ndarray:
+        """(H, W, 3) uint8 RGB flow picture of a message, resized and undistorted."""
+        try:
+            image = decode_image(msg, msgtype)
+        except ValueError as error:
+            raise ScanFormatError(f"{self.path}: {where}: {error}") from None
+        if image.ndim != 3 or image.dtype != np.uint8:
+            raise ScanFormatError(
+                f"{self.path}: {where}: a flow picture must be an 8-bit colour image, got "
+                f"{image.dtype} {image.shape}"
+            )
+        k = self.camera.intrinsics
+        return flow_picture_from_array(image, k.width, k.height, self.undistorter)
 
     def _decode(self, msg, msgtype: str, where: str, mask: bool = False) -> np.ndarray:
         k = self.camera.intrinsics
@@ -629,6 +684,46 @@ class BagSource:
         if image.ndim == 2:
             image = cv2.cvtColor(image.astype(np.uint8), cv2.COLOR_GRAY2RGB)
         return self.undistorter.image(image)
+
+
+class _StampIndex:
+    """Stamps of a topic's messages (bag order), searchable by time.
+
+    Args:
+        stamps_ns: The messages' stamps (ns), in bag order.
+    """
+
+    def __init__(self, stamps_ns: list[int]) -> None:
+        order = np.argsort(stamps_ns, kind="stable")
+        self._sorted = np.asarray(stamps_ns, np.int64)[order]
+        self._order = order
+
+    def nearest(self, t_ns: int, tolerance_s: float) -> int | None:
+        """Bag index of the message stamped nearest ``t_ns`` within ``tolerance_s``, or None."""
+        stamps = self._sorted
+        if len(stamps) == 0:
+            return None
+        i = int(np.searchsorted(stamps, t_ns))
+        best = min(
+            (j for j in (i - 1, i) if 0 <= j < len(stamps)), key=lambda j: abs(stamps[j] - t_ns)
+        )
+        if abs(int(stamps[best]) - t_ns) > round(tolerance_s * 1e9):
+            return None
+        return int(self._order[best])
+
+
+def _arrived(entry: tuple[LoadedFrame, int, int], masks: dict, flows: dict) -> bool:
+    """Whether a waiting image's mask and flow picture (bag indices, -1: none) have been read."""
+    _, mask, flow = entry
+    return (mask < 0 or mask in masks) and (flow < 0 or flow in flows)
+
+
+def _drop_used(decoded: dict[int, np.ndarray], used: int, still_needed: set[int]) -> None:
+    """Forget the decoded messages up to ``used`` that no waiting image needs."""
+    if used < 0:
+        return
+    for m in [m for m in decoded if m <= used and m not in still_needed]:
+        del decoded[m]
 
 
 class _Closing:

@@ -37,7 +37,9 @@ class ScanSource(Protocol):
 
     def truth_path(self) -> Path | None: ...
 
-    def frames(self, load_masks: bool = True) -> Iterator[LoadedFrame]: ...
+    def frames(self, load_masks: bool = True, load_flow: bool = False) -> Iterator[LoadedFrame]:
+        """Frames in time order; ``load_flow`` also reads recorded optical-flow pictures."""
+        ...
 
 
 def open_source(

@@ -46,6 +46,7 @@ No pybullet or branch_gym import: this runs on real camera frames.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 from collections import deque
@@ -68,6 +69,7 @@ __all__ = [
     "compute_flow",
     "flow_picture",
     "flow_to_picture",
+    "flow_to_picture_fast",
     "swap_red_blue",
 ]
 
@@ -144,6 +146,79 @@ def flow_to_picture(flow: np.ndarray) -> np.ndarray:
     if not known.all():
         flow = np.where(known[..., None], flow, flow.dtype.type(0))
     return flow_vis.flow_to_color(flow)
+
+
+PICTURE_HUE_BINS = 3600
+"""Angle bins of :func:`flow_to_picture_fast`'s colour-wheel table (our choice: 0.1 deg, the
+picture then stays within 1 level of flow-vis's, tests/test_flow.py)."""
+
+
+@functools.lru_cache(maxsize=1)
+def _wheel_table() -> np.ndarray:
+    """(PICTURE_HUE_BINS, 3) float32 flow-vis wheel colours (0-1) at the bins' centre angles.
+
+    Bin k holds the angles [k, k + 1) * 2 pi / PICTURE_HUE_BINS of ``atan2(-v, -u)`` wrapped to
+    [0, 2 pi), as OpenCV's ``cartToPolar(-u, -v)`` returns it; the colours are flow-vis's wheel
+    interpolated as ``flow_uv_to_colors`` does. A bin edge lies on flow-vis's seam at pi (+u),
+    where its wheel jumps from entry 54 to entry 0 (43 levels of blue).
+    """
+    wheel = flow_vis.make_colorwheel() / 255.0
+    n = len(wheel)
+    theta = (np.arange(PICTURE_HUE_BINS) + 0.5) * (2.0 * np.pi / PICTURE_HUE_BINS)
+    a = np.where(theta >= np.pi, theta - 2.0 * np.pi, theta) / np.pi  # flow-vis's [-1, 1)
+    fk = (a + 1.0) / 2.0 * (n - 1)
+    k0 = np.floor(fk).astype(np.intp)
+    f = (fk - k0)[:, None]
+    return ((1.0 - f) * wheel[k0 % n] + f * wheel[(k0 + 1) % n]).astype(np.float32)
+
+
+@functools.lru_cache(maxsize=1)
+def _whiteness_table() -> np.ndarray:
+    """(PICTURE_HUE_BINS, 3) float32 ``255 (1 - c)``: what full flow takes from white."""
+    table = np.float32(255.0) * (np.float32(1.0) - _wheel_table())
+    table.flags.writeable = False
+    return table
+
+
+def flow_to_picture_fast(flow: np.ndarray) -> np.ndarray:
+    """:func:`flow_to_picture` in float32 through a table of wheel colours: ~10x faster.
+
+    The same coding (flow-vis's wheel, its interpolation, saturation = magnitude over the
+    frame's largest), computed in float32 with the hue read from a table of
+    :data:`PICTURE_HUE_BINS` angles; within 1 level of :func:`flow_to_picture` (and without
+    its epsilon quirks). The segmenter uses this one (its 10 ms budget, ``make bench``).
+
+    Args:
+        flow: (H, W, 2) float flow in pixels, (u, v) = (right, down); NaN or infinite
+            components count as zero motion (white), as in :func:`flow_to_picture`.
+
+    Returns:
+        (H, W, 3) uint8 RGB picture.
+
+    Raises:
+        ValueError: ``flow`` is not a floating (H, W, 2) numpy array.
+    """
+    if not isinstance(flow, np.ndarray):
+        raise ValueError(f"flow must be a numpy array, got {type(flow).__name__}")
+    if not np.issubdtype(flow.dtype, np.floating):
+        raise ValueError(f"flow must be a floating array (pixels), got {flow.dtype}")
+    if flow.ndim != 3 or flow.shape[2] != 2:
+        raise ValueError(f"flow must have shape (H, W, 2), got {flow.shape}")
+    flow = flow.astype(np.float32, copy=False)
+    if not np.isfinite(flow.sum()):  # a scalar test first: the per-pixel one costs 4 ms
+        known = np.isfinite(flow).all(axis=2)
+        flow = np.where(known[..., None], flow, np.float32(0))
+    magnitude, angle = cv2.cartToPolar(-flow[..., 0], -flow[..., 1])
+    largest = float(magnitude.max())
+    if largest == 0.0:
+        return np.full((*flow.shape[:2], 3), 255, np.uint8)
+    hue = (angle * np.float32(PICTURE_HUE_BINS / (2.0 * np.pi))).astype(np.int32)  # floor
+    np.minimum(hue, PICTURE_HUE_BINS - 1, out=hue)  # an angle rounded up to 2 pi
+    # 255 (1 - r (1 - c)) = 255 - r * 255 (1 - c), in place on the looked-up 255 (1 - c)
+    picture = np.take(_whiteness_table(), hue, axis=0)  # (H, W, 3)
+    picture *= (magnitude * np.float32(1.0 / largest))[..., None]
+    np.subtract(np.float32(255.0), picture, out=picture)
+    return picture.astype(np.uint8)  # floor, as flow-vis (values are >= 0)
 
 
 def swap_red_blue(picture: np.ndarray) -> np.ndarray:
@@ -251,7 +326,7 @@ def compute_flow(
 def flow_picture(
     previous_rgb: np.ndarray, rgb: np.ndarray, config: DenseFlowConfig | None = None
 ) -> np.ndarray:
-    """:func:`flow_to_picture` of :func:`compute_flow`: the (H, W, 3) uint8 RGB flow picture.
+    """:func:`flow_to_picture_fast` of :func:`compute_flow`: the (H, W, 3) uint8 flow picture.
 
     Args:
         previous_rgb: (H, W, 3) uint8 earlier frame.
@@ -264,7 +339,7 @@ def flow_picture(
     Raises:
         ValueError: As :func:`compute_flow`.
     """
-    return flow_to_picture(compute_flow(previous_rgb, rgb, config))
+    return flow_to_picture_fast(compute_flow(previous_rgb, rgb, config))
 
 
 @dataclass(frozen=True)

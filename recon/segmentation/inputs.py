@@ -101,3 +101,59 @@ def make_input(
         out[RGB_CHANNELS : RGB_CHANNELS + 2] = flow.transpose(2, 0, 1)
         out[RGB_CHANNELS + 2] = 1.0
     return out
+
+
+def check_flow_image(flow_image: object, rgb: np.ndarray) -> np.ndarray:
+    """Validate a flow picture against its frame.
+
+    Args:
+        flow_image: Candidate (H, W, 3) uint8 RGB colour-wheel flow picture.
+        rgb: (H, W, 3) uint8 frame it belongs to.
+
+    Returns:
+        ``flow_image`` as an array.
+
+    Raises:
+        ValueError: Not an (H, W, 3) uint8 array, or another size than ``rgb``.
+    """
+    if not isinstance(flow_image, np.ndarray):
+        raise ValueError(f"flow_image must be a numpy array, got {type(flow_image).__name__}")
+    if flow_image.dtype != np.uint8 or flow_image.ndim != 3 or flow_image.shape[2] != 3:
+        raise ValueError(
+            f"flow_image must be an (H, W, 3) uint8 RGB flow picture, got {flow_image.dtype} "
+            f"{flow_image.shape}"
+        )
+    if flow_image.shape != rgb.shape:
+        raise ValueError(
+            f"flow_image has shape {flow_image.shape} but rgb has {rgb.shape}: resize the flow "
+            "picture to the frame"
+        )
+    return flow_image
+
+
+def make_picture_input(rgb: np.ndarray, flow_image: np.ndarray | None) -> np.ndarray:
+    """The input of a network that reads the flow picture (``SegmenterNetConfig.flow_picture``).
+
+    Args:
+        rgb: (H, W, 3) uint8 frame.
+        flow_image: (H, W, 3) uint8 RGB colour-wheel flow picture of the frame, or None (no
+            flow: a white picture, zero motion everywhere).
+
+    Returns:
+        (6, H, W) float32: RGB, then the flow picture's RGB, each in [-0.5, 0.5].
+
+    Raises:
+        ValueError: ``rgb`` or ``flow_image`` malformed or of different sizes.
+    """
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"rgb must be a (H, W, 3) uint8 image, got {rgb.dtype} {rgb.shape}")
+    h, w = rgb.shape[:2]
+    out = np.empty((RGB_CHANNELS + FLOW_CHANNELS, h, w), np.float32)
+    np.multiply(rgb.transpose(2, 0, 1), np.float32(_RGB_SCALE), out=out[:RGB_CHANNELS])
+    if flow_image is None:
+        out[RGB_CHANNELS:] = 1.0
+    else:
+        check_flow_image(flow_image, rgb)
+        np.multiply(flow_image.transpose(2, 0, 1), np.float32(_RGB_SCALE), out=out[RGB_CHANNELS:])
+    out -= np.float32(_RGB_CENTER)
+    return out

@@ -19,8 +19,9 @@ from torch import nn
 from torch.nn import functional
 
 RGB_CHANNELS = 3
-# Flow input: (dx, dy) normalised by the frame's flow scale, plus a validity plane (1 where the
-# flow was computed, 0 where no previous frame exists).
+# Flow input, either (dx, dy) normalised by the frame's flow scale plus a validity plane (1 where
+# the flow was computed, 0 where no previous frame exists), or the flow picture's RGB
+# (``flow_picture``; white where there is no flow).
 FLOW_CHANNELS = 3
 
 
@@ -30,7 +31,10 @@ class SegmenterNetConfig:
 
     Attributes:
         use_flow: Take optical flow from the previous frame as extra input channels (off by
-            default: it did not help, docs/segmenter.md "Flow ablation").
+            default: it did not help on the clean world, docs/segmenter.md "Flow ablation").
+        flow_picture: With ``use_flow``: the flow arrives as the paper's colour-wheel picture
+            (:func:`recon.segmentation.flow.flow_to_picture`), so recorded pictures of any
+            flow network work too; else as normalised (dx, dy) vectors.
         widths: Channels of the encoder levels (level i works at 1 / 2 ** (i + 1) resolution).
         decoder_widths: Channels of the decoder at levels len(widths) - 2 ... 0.
         separable: Depthwise-separable 3x3 convolutions after the stem (else plain).
@@ -38,12 +42,15 @@ class SegmenterNetConfig:
     """
 
     use_flow: bool = False
+    flow_picture: bool = False
     widths: tuple[int, ...] = (16, 32, 64, 128)
     decoder_widths: tuple[int, ...] = (64, 32, 16)
     separable: bool = True
     primary_head: bool = False
 
     def __post_init__(self) -> None:
+        if self.flow_picture and not self.use_flow:
+            raise ValueError("SegmenterNetConfig.flow_picture needs use_flow=True")
         if len(self.widths) < 2 or min(self.widths) <= 0:
             raise ValueError(f"widths must hold >= 2 positive values, got {self.widths}")
         if len(self.decoder_widths) != len(self.widths) - 1 or min(self.decoder_widths) <= 0:

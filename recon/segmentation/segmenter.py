@@ -16,7 +16,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from recon.segmentation.inputs import FlowConfig, make_input
+from recon.segmentation.flow import DenseFlowConfig, flow_picture
+from recon.segmentation.inputs import FlowConfig, check_flow_image, make_input, make_picture_input
 from recon.segmentation.network import SegmenterNet
 from recon.segmentation.weights import load_weights
 
@@ -62,9 +63,10 @@ class LearnedSegmenter:
 
     Args:
         model: The network (any mode; a BN-folded eval copy is used).
-        flow: Flow normalisation the network was trained with.
+        flow: Flow normalisation the network was trained with (flow-vector networks).
         threshold: Branch probability threshold.
         source: Where the weights came from (for messages).
+        dense_flow: How a flow-picture network computes the flow from ``previous_rgb``.
     """
 
     def __init__(
@@ -73,9 +75,11 @@ class LearnedSegmenter:
         flow: FlowConfig | None = None,
         threshold: float = 0.5,
         source: str = "<memory>",
+        dense_flow: DenseFlowConfig | None = None,
     ) -> None:
         self.config = model.config
         self.flow = flow or FlowConfig()
+        self.dense_flow = dense_flow or DenseFlowConfig()
         self.threshold = float(threshold)
         self.source = source
         self._net = fuse_batch_norm(model).to(memory_format=torch.channels_last)
@@ -83,20 +87,58 @@ class LearnedSegmenter:
 
     @property
     def uses_flow(self) -> bool:
-        """Whether ``previous_rgb`` is used (optical flow input)."""
+        """Whether ``previous_rgb`` (or ``flow_image``) is used (optical flow input)."""
         return self.config.use_flow
 
-    def logits(self, rgb: np.ndarray, previous_rgb: np.ndarray | None = None) -> np.ndarray:
-        """Branch logits of one frame.
+    @property
+    def uses_flow_picture(self) -> bool:
+        """Whether the network reads the flow as the colour-wheel picture (the paper's input)."""
+        return self.config.flow_picture
 
-        Args:
-            rgb: (H, W, 3) uint8 frame.
-            previous_rgb: (H, W, 3) uint8 previous frame, or None.
+    def input(
+        self,
+        rgb: np.ndarray,
+        previous_rgb: np.ndarray | None = None,
+        flow_image: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """The network input of one frame (see :meth:`segment` for the arguments).
+
+        Returns:
+            (C, H, W) float32 input.
+        """
+        if previous_rgb is not None and flow_image is not None:
+            raise ValueError("give previous_rgb or flow_image, not both")
+        if flow_image is not None:
+            check_flow_image(flow_image, rgb)
+            if self.config.use_flow and not self.config.flow_picture:
+                raise ValueError(
+                    f"segmenter {self.source} reads flow vectors, not a flow picture: pass "
+                    "previous_rgb instead of flow_image"
+                )
+        if not self.config.flow_picture:
+            previous_rgb = previous_rgb if self.config.use_flow else None
+            return make_input(rgb, previous_rgb, self.config.use_flow, self.flow)
+        if previous_rgb is not None:
+            if previous_rgb.shape != rgb.shape or previous_rgb.dtype != np.uint8:
+                raise ValueError(
+                    f"previous_rgb must be a uint8 image of the frame's shape {rgb.shape}, got "
+                    f"{previous_rgb.dtype} {previous_rgb.shape}"
+                )
+            flow_image = flow_picture(previous_rgb, rgb, self.dense_flow)
+        return make_picture_input(rgb, flow_image)
+
+    def logits(
+        self,
+        rgb: np.ndarray,
+        previous_rgb: np.ndarray | None = None,
+        flow_image: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Branch logits of one frame (see :meth:`segment` for the arguments).
 
         Returns:
             (H, W) float32 logits (> logit(threshold): branch).
         """
-        x = make_input(rgb, previous_rgb, self.config.use_flow, self.flow)
+        x = self.input(rgb, previous_rgb, flow_image)
         h, w = x.shape[1:]
         m = self.config.size_multiple
         pad_h, pad_w = (-h) % m, (-w) % m
@@ -107,18 +149,34 @@ class LearnedSegmenter:
             out = self._net(tensor)  # NCHW input measured faster than a channels_last copy
         return out[0, 0, :h, :w].numpy()
 
-    def segment(self, rgb: np.ndarray, previous_rgb: np.ndarray | None = None) -> np.ndarray:
-        """Branch mask of one frame.
+    def segment(
+        self,
+        rgb: np.ndarray,
+        previous_rgb: np.ndarray | None = None,
+        flow_image: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Mask of the scanned tree in one frame.
 
         Args:
-            rgb: (H, W, 3) uint8 frame.
-            previous_rgb: (H, W, 3) uint8 previous frame (flow input), or None; ignored by a
-                network without flow input.
+            rgb: (H, W, 3) uint8 RGB frame.
+            previous_rgb: (H, W, 3) uint8 earlier frame to take the flow against (the camera
+                moved >= 7.5 mm and turned < 0.5 deg since: :class:`recon.segmentation.flow.
+                FramePairer`), or None. The segmenter computes the flow (DIS,
+                ``dense_flow``) and codes it as the paper's picture.
+            flow_image: (H, W, 3) uint8 RGB colour-wheel flow picture of the frame from any
+                flow method (:func:`recon.segmentation.flow.flow_to_picture`), instead of
+                ``previous_rgb``. With neither, the frame is segmented from its colours alone
+                (a flow network then sees zero flow). A network without flow input ignores both.
 
         Returns:
             (H, W) bool mask, True on the scanned tree's branches.
+
+        Raises:
+            ValueError: A malformed ``rgb``, ``previous_rgb`` or ``flow_image`` (dtype, shape,
+                another size than ``rgb``), both given, or a flow picture for a network that
+                reads flow vectors.
         """
-        return self.logits(rgb, previous_rgb) > self._logit_threshold
+        return self.logits(rgb, previous_rgb, flow_image) > self._logit_threshold
 
 
 def load_segmenter(spec: str = LEARNED_SPEC) -> LearnedSegmenter:

@@ -1,0 +1,188 @@
+"""Training batches of the flow-picture segmenter: orchard pairs -> (RGB, flow picture) -> mask.
+
+A pair of the orchard world (:mod:`branch_gym.segmenter_training.orchard_pairs`) becomes one
+training frame:
+
+1. both frames get another camera's look (:func:`~branch_gym.segmenter_training.augment.
+   camera_effects`: exposure, white balance, blur, noise, JPEG) and a colour shift;
+2. the flow of the current frame is either the renderer's exact flow, corrupted the way
+   learned flow networks err (smoothed across edges, predicted at a quarter resolution and
+   upsampled, smooth noise, a global drift of the background), or OpenCV's DIS flow computed
+   from the two augmented frames (the segmenter's own flow at run time);
+3. the flow vectors are turned by a random angle (and mirrored half the time), so that the
+   picture's hue, which codes the motion's direction, carries no cue: what is left is the
+   parallax, the near tree saturated against a pale background (and recorded pictures of any
+   direction convention read alike);
+4. the flow is coded as the paper's colour-wheel picture normalised by the frame's largest flow
+   (:func:`recon.segmentation.flow.flow_to_picture_fast`), or left white (no flow) in a few;
+5. a flip and a crop.
+
+Batch ``k`` is drawn from ``np.random.default_rng([seed, k])`` alone, so a resumed run sees
+the batches an uninterrupted one would.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numpy as np
+import torch
+
+from branch_gym.segmenter_training.augment import camera_effects, smooth_noise
+from branch_gym.segmenter_training.config import FlowAugmentConfig, OrchardAugmentConfig
+from branch_gym.segmenter_training.generate import branch_mask
+from recon.segmentation.flow import DenseFlowConfig, compute_flow
+from recon.segmentation.flow import flow_to_picture_fast as flow_to_picture
+from recon.segmentation.inputs import make_picture_input
+
+
+def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
+    return float(rng.uniform(bounds[0], bounds[1]))
+
+
+def _recolour(frames: np.ndarray, rng: np.random.Generator, config: OrchardAugmentConfig):
+    """(2, H, W, 3) uint8 frames with one hue shift and saturation gain."""
+    shift = _uniform(rng, config.hue_shift_range_deg) / 2.0  # OpenCV hue: 0-180
+    gain = _uniform(rng, config.saturation_range)
+    out = np.empty_like(frames)
+    for k, frame in enumerate(frames):
+        hsv = cv2.cvtColor(frame, cv2.COLOR_RGB2HSV).astype(np.float32)
+        hsv[..., 0] = np.mod(hsv[..., 0] + shift, 180.0)
+        hsv[..., 1] = np.clip(hsv[..., 1] * gain, 0, 255)
+        out[k] = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB)
+    return out
+
+
+def corrupt_exact_flow(
+    flow: np.ndarray, rng: np.random.Generator, config: FlowAugmentConfig
+) -> np.ndarray:
+    """The exact flow with the errors of a learned flow network (FlowAugmentConfig).
+
+    Args:
+        flow: (H, W, 2) float flow in pixels.
+        rng: Draws the corruption.
+        config: Its ranges.
+
+    Returns:
+        (H, W, 2) float32 flow.
+    """
+    flow = flow.astype(np.float32)
+    h, w = flow.shape[:2]
+    if rng.random() < config.coarse_probability and config.coarse_factor > 1:
+        small = cv2.resize(flow, (w // config.coarse_factor, h // config.coarse_factor),
+                           interpolation=cv2.INTER_AREA)  # fmt: skip
+        flow = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR)
+    sigma = _uniform(rng, config.smooth_sigma_range_px)
+    if sigma > 0.2:
+        flow = cv2.GaussianBlur(flow, (0, 0), sigma)
+    largest = float(np.sqrt((flow**2).sum(axis=2).max())) or 1.0
+    amplitude = _uniform(rng, config.noise_fraction_range) * largest
+    if amplitude > 0:
+        cell = _uniform(rng, (8.0, 60.0))
+        noise = np.stack([smooth_noise(rng, (h, w), cell) for _ in range(2)], axis=2) - 0.5
+        flow = flow + np.float32(2 * amplitude) * noise
+    if rng.random() < config.drift_probability:
+        angle = rng.uniform(0, 2 * math.pi)
+        size = _uniform(rng, config.drift_fraction_range) * largest
+        flow = flow + np.float32([size * math.cos(angle), size * math.sin(angle)])
+    return flow
+
+
+def _turn(flow: np.ndarray, rng: np.random.Generator, config: FlowAugmentConfig) -> np.ndarray:
+    """Flow vectors turned by a random angle, mirrored first with ``mirror_probability``."""
+    u, v = flow[..., 0], flow[..., 1]
+    if rng.random() < config.mirror_probability:
+        v = -v
+    angle = rng.uniform(0, 2 * math.pi)
+    c, s = np.float32(math.cos(angle)), np.float32(math.sin(angle))
+    return np.stack([c * u - s * v, s * u + c * v], axis=2)
+
+
+def training_frame(
+    rgb_pair: np.ndarray,
+    exact_flow: np.ndarray,
+    labels: np.ndarray,
+    rng: np.random.Generator,
+    config: OrchardAugmentConfig,
+    crop_hw: tuple[int, int],
+) -> tuple[np.ndarray, np.ndarray]:
+    """One randomised training frame of an orchard pair (module docstring).
+
+    Args:
+        rgb_pair: (2, H, W, 3) uint8 earlier and current frame.
+        exact_flow: (H, W, 2) float current-to-earlier flow in pixels.
+        labels: (H, W) current frame's instance labels.
+        rng: Draws everything.
+        config: The randomisation.
+        crop_hw: Crop (height, width).
+
+    Returns:
+        ((6, h, w) float32 network input, (h, w) bool target).
+    """
+    frames = camera_effects(rgb_pair, rng, config.camera)
+    frames = _recolour(frames, rng, config)
+    flow_config = config.flow
+    if rng.random() < flow_config.no_flow_probability:
+        picture = None
+    else:
+        if rng.random() < flow_config.exact_probability:
+            flow = corrupt_exact_flow(exact_flow, rng, flow_config)
+        else:
+            weights = np.asarray(flow_config.dis_weights, float)
+            preset = flow_config.dis_presets[rng.choice(len(weights), p=weights / weights.sum())]
+            flow = compute_flow(frames[0], frames[1], DenseFlowConfig(preset=str(preset)))
+        picture = flow_to_picture(_turn(flow, rng, flow_config))
+    current, target = frames[1], branch_mask(labels)
+    if rng.random() < config.flip_probability:  # a mirrored world: the picture mirrors too
+        current, target = current[:, ::-1], target[:, ::-1]
+        picture = None if picture is None else picture[:, ::-1]
+    h, w = current.shape[:2]
+    ch, cw = crop_hw
+    top, left = int(rng.integers(0, h - ch + 1)), int(rng.integers(0, w - cw + 1))
+    window = (slice(top, top + ch), slice(left, left + cw))
+    current = np.ascontiguousarray(current[window])
+    picture = None if picture is None else np.ascontiguousarray(picture[window])
+    return make_picture_input(current, picture), np.ascontiguousarray(target[window])
+
+
+class OrchardPairBatches(torch.utils.data.Dataset):
+    """Batch ``k`` of a run on orchard pairs: ((B, 6, h, w) input, (B, 1, h, w) target).
+
+    Args:
+        data: Arrays of :func:`branch_gym.segmenter_training.orchard_pairs.load_orchard_shards`.
+        config: Randomisation.
+        steps: Number of batches.
+        batch_size: Frames per batch.
+        crop_hw: Crop (height, width).
+        seed: Run seed.
+    """
+
+    def __init__(
+        self,
+        data: dict[str, np.ndarray],
+        config: OrchardAugmentConfig,
+        steps: int,
+        batch_size: int,
+        crop_hw: tuple[int, int],
+        seed: int,
+    ) -> None:
+        self.data, self.config, self.steps = data, config, steps
+        self.batch_size, self.crop_hw, self.seed = batch_size, crop_hw, seed
+
+    def __len__(self) -> int:
+        return self.steps
+
+    def __getitem__(self, step: int) -> tuple[torch.Tensor, torch.Tensor]:
+        cv2.setNumThreads(1)
+        rng = np.random.default_rng([self.seed, step])
+        indices = rng.integers(0, len(self.data["rgb"]), size=self.batch_size)
+        inputs, targets = [], []
+        for i in indices:
+            x, y = training_frame(
+                self.data["rgb"][i], self.data["flow"][i], self.data["labels"][i], rng,
+                self.config, self.crop_hw,
+            )  # fmt: skip
+            inputs.append(x)
+            targets.append(y[None].astype(np.float32))
+        return torch.from_numpy(np.stack(inputs)), torch.from_numpy(np.stack(targets))

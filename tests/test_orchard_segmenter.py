@@ -1,0 +1,202 @@
+"""The flow-picture segmenter: its input, its API, its orchard training data and batches."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from branch_gym.segmenter_training.config import (
+    FlowAugmentConfig,
+    OrchardAugmentConfig,
+    TrainConfig,
+)
+from branch_gym.segmenter_training.orchard_augment import (
+    OrchardPairBatches,
+    corrupt_exact_flow,
+    training_frame,
+)
+from branch_gym.segmenter_training.orchard_pairs import (
+    OrchardPairsConfig,
+    generate_orchard_shard,
+)
+from branch_gym.segmenter_training.train import dataclass_from_dict
+from recon.segmentation import LearnedSegmenter, SegmenterNet, SegmenterNetConfig
+from recon.segmentation.flow import flow_to_picture_fast
+from recon.segmentation.inputs import make_picture_input
+
+H, W = 48, 64
+
+
+def _segmenter(**net) -> LearnedSegmenter:
+    config = SegmenterNetConfig(**{"use_flow": True, "flow_picture": True, **net})
+    return LearnedSegmenter(SegmenterNet(config).eval())
+
+
+def _frames(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    previous = rng.integers(0, 255, (H, W, 3), dtype=np.uint8)
+    return previous, np.roll(previous, 3, axis=0)
+
+
+def test_picture_input_codes_rgb_and_picture_and_white_without_flow():
+    rgb = np.full((H, W, 3), 255, np.uint8)
+    picture = np.zeros((H, W, 3), np.uint8)
+    x = make_picture_input(rgb, picture)
+    assert x.shape == (6, H, W) and x.dtype == np.float32
+    np.testing.assert_allclose(x[:3], 0.5)
+    np.testing.assert_allclose(x[3:], -0.5)
+    np.testing.assert_allclose(make_picture_input(rgb, None)[3:], 0.5)  # white: no motion
+
+
+def test_flow_picture_network_segments_from_frames_picture_or_colour_alone():
+    segmenter = _segmenter()
+    previous, rgb = _frames()
+    from_pair = segmenter.logits(rgb, previous_rgb=previous)
+    picture = flow_to_picture_fast(np.full((H, W, 2), (0.0, -3.0), np.float32))
+    from_picture = segmenter.logits(rgb, flow_image=picture)
+    alone = segmenter.logits(rgb)
+    assert from_pair.shape == from_picture.shape == alone.shape == (H, W)
+    assert not np.allclose(from_picture, alone)  # the picture reaches the network
+    assert segmenter.segment(rgb).dtype == bool
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"flow_image": np.zeros((H, W - 1, 3), np.uint8)}, "flow_image has shape"),
+        ({"flow_image": np.zeros((H, W, 3), np.float32)}, "uint8 RGB flow picture"),
+        ({"flow_image": np.zeros((H, W), np.uint8)}, "uint8 RGB flow picture"),
+        ({"previous_rgb": np.zeros((H + 2, W, 3), np.uint8)}, "previous_rgb must be"),
+        (
+            {
+                "previous_rgb": np.zeros((H, W, 3), np.uint8),
+                "flow_image": np.zeros((H, W, 3), np.uint8),
+            },
+            "not both",
+        ),
+    ],
+)
+def test_bad_flow_inputs_are_named(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        _segmenter().segment(_frames()[1], **kwargs)
+
+
+def test_a_flow_vector_network_refuses_a_picture_and_an_rgb_network_ignores_it():
+    rgb = _frames()[1]
+    picture = np.full((H, W, 3), 200, np.uint8)
+    vectors = LearnedSegmenter(SegmenterNet(SegmenterNetConfig(use_flow=True)).eval())
+    with pytest.raises(ValueError, match="flow vectors"):
+        vectors.segment(rgb, flow_image=picture)
+    colour = LearnedSegmenter(SegmenterNet(SegmenterNetConfig()).eval())
+    np.testing.assert_array_equal(colour.logits(rgb, flow_image=picture), colour.logits(rgb))
+    with pytest.raises(ValueError, match="needs use_flow"):
+        SegmenterNetConfig(flow_picture=True)
+
+
+def test_corrupted_exact_flow_keeps_its_shape_and_the_turn_hides_the_direction():
+    rng = np.random.default_rng(0)
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[:, 20:26] = (0.0, -12.0)  # a near branch moving up, a still background
+    corrupted = corrupt_exact_flow(flow, rng, FlowAugmentConfig(drift_probability=0.0))
+    assert corrupted.shape == flow.shape and np.isfinite(corrupted).all()
+    # The branch keeps moving most, whatever the corruption.
+    speed = np.hypot(corrupted[..., 0], corrupted[..., 1])
+    assert speed[:, 21:25].mean() > 3 * speed[:, 40:].mean()
+    # Turned flow: hues differ across draws, the saturation pattern does not.
+    labels = np.zeros((H, W), np.uint16)
+    labels[:, 20:26] = 1
+    pair = np.stack(_frames())
+    config = OrchardAugmentConfig(
+        flow=FlowAugmentConfig(exact_probability=1.0, no_flow_probability=0.0,
+                               coarse_probability=0.0, smooth_sigma_range_px=(0.0, 0.0),
+                               noise_fraction_range=(0.0, 0.0), drift_probability=0.0),
+        flip_probability=0.0,
+    )  # fmt: skip
+    hues, whiteness = [], []
+    for seed in range(4):
+        x, y = training_frame(pair, flow, labels, np.random.default_rng(seed), config, (H, W))
+        picture = (x[3:] + 0.5) * 255.0
+        hues.append(tuple(np.round(picture[:, 10, 22])))
+        whiteness.append(picture[:, :, 40:].min())
+        np.testing.assert_array_equal(y, labels == 1)
+    assert len(set(hues)) > 1
+    assert min(whiteness) > 250  # the still background stays white
+
+
+def test_training_frames_crop_flip_and_drop_the_flow():
+    rng = np.random.default_rng(0)
+    pair = np.stack(_frames())
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[:, :10] = (4.0, 0.0)
+    labels = np.zeros((H, W), np.uint16)
+    labels[:, :10] = 1  # the tree: the left 10 columns
+    labels[:, 30:34] = 300  # a neighbour's branch: not the target
+    flipped = OrchardAugmentConfig(flip_probability=1.0,
+                                   flow=FlowAugmentConfig(no_flow_probability=1.0))  # fmt: skip
+    x, y = training_frame(pair, flow, labels, rng, flipped, (32, W))
+    assert x.shape == (6, 32, W) and y.shape == (32, W)
+    assert y[:, -10:].all() and not y[:, :-10].any()
+    np.testing.assert_allclose(x[3:], 0.5)  # no flow: white
+    batches = OrchardPairBatches(
+        {"rgb": pair[None], "flow": flow[None], "labels": labels[None]},
+        OrchardAugmentConfig(), steps=3, batch_size=2, crop_hw=(32, 48), seed=7,
+    )  # fmt: skip
+    first, again = batches[1], batches[1]
+    assert first[0].shape == (2, 6, 32, 48) and first[1].shape == (2, 1, 32, 48)
+    np.testing.assert_array_equal(first[0].numpy(), again[0].numpy())  # batch k: from (seed, k)
+
+
+def test_orchard_pairs_config_rejects_bad_values_by_name():
+    with pytest.raises(ValueError, match="baseline_range_m"):
+        OrchardPairsConfig(baseline_range_m=(0.005, 0.02))  # below the paper's 7.5 mm
+    with pytest.raises(ValueError, match="rotation_range_deg"):
+        OrchardPairsConfig(rotation_range_deg=(0.0, 0.6))  # above the paper's 0.5 deg
+    with pytest.raises(ValueError, match="architectures"):
+        OrchardPairsConfig(architectures=("bonsai",), architecture_weights=(1.0,))
+    with pytest.raises(ValueError, match="architecture_weights"):
+        OrchardPairsConfig(architecture_weights=(1.0,))
+    with pytest.raises(ValueError, match="trees"):
+        OrchardPairsConfig(trees=0)
+    with pytest.raises(ValueError, match="dis_presets"):
+        FlowAugmentConfig(dis_presets=("slow",), dis_weights=(1.0,))
+    with pytest.raises(ValueError, match="no_flow_probability"):
+        FlowAugmentConfig(no_flow_probability=1.5)
+
+
+def test_train_config_round_trips_through_its_dict():
+    config = replace(
+        TrainConfig(),
+        net=SegmenterNetConfig(use_flow=True, flow_picture=True),
+        orchard=OrchardAugmentConfig(flow=FlowAugmentConfig(exact_probability=0.3)),
+        crop_hw=(96, 128),
+    )
+    assert dataclass_from_dict(TrainConfig, config.to_dict()) == config
+
+
+@pytest.mark.slow
+def test_an_orchard_shard_is_reproducible_and_its_flow_and_target_fit_the_frames():
+    config = OrchardPairsConfig(trees=1, trees_per_shard=1, pairs_per_tree=2)
+    shard = generate_orchard_shard(config, seed=3, index=0, evaluation=True)
+    again = generate_orchard_shard(config, seed=3, index=0, evaluation=True)
+    for key in shard:
+        np.testing.assert_array_equal(shard[key], again[key])
+    assert shard["seeds"].tolist() == [0, 0]  # evaluation trees: seeds 0..
+    assert shard["rgb"].shape[1:] == (2, 240, 320, 3)
+    tree = (shard["labels"] >= 1) & (shard["labels"] < 100)
+    assert tree.any(axis=(1, 2)).all()  # the scanned tree is in view
+    # The exact flow moves the current frame's tree pixels onto similar colours of the earlier
+    # frame (a static scene), better than no motion does.
+    for (earlier, current), flow, mask in zip(shard["rgb"], shard["flow"], tree, strict=True):
+        ys, xs = np.nonzero(mask)
+        u, v = flow[ys, xs, 0].astype(float), flow[ys, xs, 1].astype(float)
+        assert np.median(np.hypot(u, v)) > 2.0  # >= 7.5 mm at <= 0.45 m: several pixels
+        ty = np.clip(np.rint(ys + v), 0, 239).astype(int)
+        tx = np.clip(np.rint(xs + u), 0, 319).astype(int)
+        moved = np.abs(earlier[ty, tx].astype(int) - current[ys, xs].astype(int)).mean()
+        still = np.abs(earlier[ys, xs].astype(int) - current[ys, xs].astype(int)).mean()
+        assert moved < still
+    assert math.isfinite(float(shard["flow"].astype(np.float32).sum()))
+
