@@ -199,4 +199,3 @@ def test_an_orchard_shard_is_reproducible_and_its_flow_and_target_fit_the_frames
         still = np.abs(earlier[ys, xs].astype(int) - current[ys, xs].astype(int)).mean()
         assert moved < still
     assert math.isfinite(float(shard["flow"].astype(np.float32).sum()))
-
