@@ -25,6 +25,10 @@ the same core:
   render figure timed a minute apart from the steps, and a machine's speed can drift by ~20 %
   over minutes (on one of ours the separate-floor LK ratio of the same code read 1.59 and 1.35 in
   two runs ~10 minutes apart): the in-step floor shares the steps' moment.
+* ``env_step_orchard_learned_ms``: the LK step on the orchard world from pixels (the shipped
+  learned segmenter, flow pictures from paired frames; only the frames the modeler reads are
+  segmented), and ``env_step_orchard_learned_over_env_step`` its ratio to ``env_step_ms``
+  (target <= 1.6, issue 32).
 * ``env_steps_per_s_mix``: the training mode with the fixed action mix of
   :mod:`bench.action_mix` (one rotation every 10 steps) on ``MIX_SEEDS``
   (``train_over_env_fast_mix_seeds``; ``train_over_env_fast`` compares the training rate with
@@ -142,6 +146,7 @@ def run() -> dict[str, float]:
         oracle = _episodes("oracle")
         fast = _episodes("oracle", render_tracking_frames=False)
         mix = _episodes("oracle", mix=True, seeds=MIX_SEEDS, render_tracking_frames=False)
+        orchard = _episodes("lk", world="orchard", segmenter="learned")
     floor_ms = TRACKING_FRAMES * render_ms + iteration_ms
     floor_fast_ms = render_ms + fast["iteration_ms"]
     return {
@@ -154,6 +159,8 @@ def run() -> dict[str, float]:
         "env_floor_render_frame_ms": render_ms,
         "env_floor_recon_iteration_ms": iteration_ms,
         "env_step_ms": lk["step_ms"],
+        "env_step_orchard_learned_ms": orchard["step_ms"],
+        "env_step_orchard_learned_over_env_step": orchard["step_ms"] / lk["step_ms"],
         "env_step_floor_ms": floor_ms,
         "env_step_over_floor": lk["step_ms"] / floor_ms,
         "env_step_fast_ms": fast["step_ms"],

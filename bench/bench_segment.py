@@ -10,6 +10,9 @@ each frame, timed alone. Figures (medians, milliseconds):
 * ``segment_no_previous_ms``: the same without a previous frame (a scan's first frame: no flow).
 * ``segment_cpu_ms``: CPU time of the ``segment_ms`` call (``time.thread_time``): what the call
   costs one core when other processes share the machine (wall time then grows, CPU time not).
+* ``segment_rgb_clean_ms``: ``segment_ms`` of the clean world's RGB-only network
+  (``learned:.../rgb_clean.pt``, the default before issue 32), in the same run: the reference
+  for machines that differ.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ import torch
 
 from branch_gym.segmenter_training.evaluate import EvaluateConfig, render_eval_frames
 from recon.segmentation import load_segmenter
+from recon.segmentation.segmenter import RGB_CLEAN_WEIGHTS
 
 SEEDS = (0, 1, 2)  # fixed paper-default trees
 FRAMES_PER_TREE = 8
@@ -65,8 +69,11 @@ def bench_segment(spec: str = "learned") -> dict[str, float]:
 
 
 def run() -> dict[str, float]:
-    """Entry point of ``bench/run.py`` (same as :func:`bench_segment`)."""
-    return bench_segment()
+    """Entry point of ``bench/run.py``: :func:`bench_segment` of the shipped and the RGB network."""
+    figures = bench_segment()
+    reference = bench_segment(f"learned:{RGB_CLEAN_WEIGHTS}")
+    figures["segment_rgb_clean_ms"] = reference["segment_ms"]
+    return figures
 
 
 if __name__ == "__main__":

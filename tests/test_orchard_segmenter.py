@@ -15,6 +15,7 @@ from branch_gym.segmenter_training.config import (
 )
 from branch_gym.segmenter_training.orchard_augment import (
     OrchardPairBatches,
+    add_far_copy,
     corrupt_exact_flow,
     training_frame,
 )
@@ -149,9 +150,28 @@ def test_training_frames_crop_flip_and_drop_the_flow():
     np.testing.assert_array_equal(first[0].numpy(), again[0].numpy())  # batch k: from (seed, k)
 
 
+def test_a_far_copy_of_the_tree_looks_like_it_and_moves_like_the_background():
+    rng = np.random.default_rng(3)
+    pair = np.stack(_frames())
+    target = np.zeros((H, W), bool)
+    target[:, 28:36] = True
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[target] = (0.0, -9.0)
+    flow[~target] = (0.5, 0.0)
+    copied_pair, copied_flow = add_far_copy(pair, flow, target, rng)
+    copy = (copied_pair != pair).any(axis=(0, 3))
+    assert copy.any() and not (copy & target).any()  # behind the tree, never over it
+    columns = np.nonzero(copy.any(axis=0))[0]
+    shift = columns[0] - 28
+    np.testing.assert_array_equal(copied_pair[1][copy], np.roll(pair[1], shift, axis=1)[copy])
+    np.testing.assert_array_equal(copied_pair[0][copy], copied_pair[1][copy])  # still
+    np.testing.assert_allclose(copied_flow[copy], np.tile([0.5, 0.0], (copy.sum(), 1)))
+    np.testing.assert_array_equal(copied_flow[target], flow[target])
+
+
 def test_orchard_pairs_config_rejects_bad_values_by_name():
     with pytest.raises(ValueError, match="baseline_range_m"):
-        OrchardPairsConfig(baseline_range_m=(0.005, 0.02))  # below the paper's 7.5 mm
+        OrchardPairsConfig(baseline_range_m=(0.0, 0.02))  # the frames must differ
     with pytest.raises(ValueError, match="rotation_range_deg"):
         OrchardPairsConfig(rotation_range_deg=(0.0, 0.6))  # above the paper's 0.5 deg
     with pytest.raises(ValueError, match="architectures"):
@@ -199,3 +219,75 @@ def test_an_orchard_shard_is_reproducible_and_its_flow_and_target_fit_the_frames
         still = np.abs(earlier[ys, xs].astype(int) - current[ys, xs].astype(int)).mean()
         assert moved < still
     assert math.isfinite(float(shard["flow"].astype(np.float32).sum()))
+
+
+def _bark(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """(h, w, 3) uint8 bark-like texture: one brown with vertical streaks and noise."""
+    streaks = rng.normal(0.0, 18.0, (1, w, 1)) + rng.normal(0.0, 8.0, (h, w, 1))
+    return np.clip(np.array([105.0, 80.0, 60.0]) + streaks, 0, 255).astype(np.uint8)
+
+
+def _parallax_scene(shift_near_px: float, shift_far_px: float, seed: int = 0):
+    """Two identical branches on a textured sky: (earlier, current, near mask, far mask).
+
+    Colour alone cannot tell them apart (same bark, same width); between the two frames the
+    camera moves sideways, so the near branch moves ``shift_near_px`` and the far one
+    ``shift_far_px`` (and the sky nothing).
+    """
+    rng = np.random.default_rng(seed)
+    h, w = 240, 320
+    sky = np.clip(np.array([170.0, 175.0, 185.0]) + rng.normal(0.0, 6.0, (h, w, 1)), 0, 255).astype(
+        np.uint8
+    )
+    bark = _bark(rng, h, 24)
+    frames, masks = [], []
+    for near_x, far_x in ((90.0, 210.0), (90.0 + shift_near_px, 210.0 + shift_far_px)):
+        frame = sky.copy()
+        near = np.zeros((h, w), bool)
+        far = np.zeros((h, w), bool)
+        for x0, mask in ((far_x, far), (near_x, near)):
+            x = round(x0)
+            frame[:, x : x + 24] = bark
+            mask[:, x : x + 24] = True
+        frames.append(frame)
+        masks.append((near, far))
+    near, far = masks[1]
+    return frames[0], frames[1], near, far
+
+
+@pytest.mark.slow
+def test_the_shipped_segmenter_tells_a_near_branch_from_a_far_one_by_parallax():
+    """Same bark, same width: only the flow (12 px against 1 px) says which one is near.
+
+    From colour alone the network takes both (they look like the scanned trunk); with the flow,
+    from the frames (DIS) or as the exact picture, it keeps the near one and drops much of the
+    far one. The separation is partial (docs/orchard_segmenter.md: on three scenes the far
+    branch keeps 40-65 % with the exact picture, 44-93 % with DIS, against 80-100 % without).
+    """
+    from recon.segmentation import load_segmenter
+
+    segmenter = load_segmenter("learned")
+    assert segmenter.uses_flow_picture
+    drops = {"frames": [], "picture": []}
+    for seed in range(3):
+        earlier, current, near, far = _parallax_scene(12.0, 1.0, seed)
+        alone = segmenter.segment(current)
+        far_alone = (alone & far).sum() / far.sum()
+        assert far_alone > 0.75  # colour alone cannot tell: the far trunk is taken
+        picture = _scene_flow_picture(near, far, 12.0, 1.0)
+        for name, mask in (
+            ("frames", segmenter.segment(current, previous_rgb=earlier)),
+            ("picture", segmenter.segment(current, flow_image=picture)),
+        ):
+            assert (mask & near).sum() > 0.9 * near.sum()  # the near branch is kept
+            drops[name].append(far_alone - (mask & far).sum() / far.sum())
+    assert np.mean(drops["picture"]) > 0.3
+    assert np.mean(drops["frames"]) > 0.15
+
+
+def _scene_flow_picture(near, far, shift_near_px, shift_far_px) -> np.ndarray:
+    """The exact flow picture of :func:`_parallax_scene` (current to earlier: -shift)."""
+    flow = np.zeros((*near.shape, 2), np.float32)
+    flow[far, 0] = -shift_far_px
+    flow[near, 0] = -shift_near_px
+    return flow_to_picture_fast(flow)

@@ -6,7 +6,7 @@ Examples::
     python -m branch_gym.segmenter_training train --data runs/segmenter/data \
         --run runs/segmenter/run --seed 0 --export runs/segmenter.pt
     python -m branch_gym.segmenter_training evaluate \
-        --weights recon/segmentation/weights/segmenter.pt
+        --weights recon/segmentation/weights/rgb_clean.pt
     python -m branch_gym.segmenter_training score-real --data ../shared/data/real_dev \
         --weights learned --out results.json --figure real.png
 
@@ -29,6 +29,7 @@ from tqdm import tqdm
 from branch_gym.segmenter_training.config import GenerateConfig, TrainConfig
 from branch_gym.segmenter_training.evaluate import EvaluateConfig, evaluate_segmenters
 from branch_gym.segmenter_training.generate import (
+    EVAL_PRESETS,
     generate_shard,
     shard_count,
     shard_path,
@@ -69,7 +70,10 @@ def _generate(args: argparse.Namespace) -> None:
 
 def _generate_orchard(args: argparse.Namespace) -> None:
     config = OrchardPairsConfig(
-        trees=args.trees, pairs_per_tree=args.pairs_per_tree, world=args.world
+        trees=args.trees,
+        pairs_per_tree=args.pairs_per_tree,
+        world=args.world,
+        baseline_range_m=tuple(args.baseline_range_m),
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -94,7 +98,10 @@ def _train(args: argparse.Namespace) -> None:
 
     base = TrainConfig()
     net = replace(base.net, use_flow=args.flow or args.flow_picture, flow_picture=args.flow_picture)
-    config = replace(base, net=net, steps=args.steps, batch_size=args.batch_size)
+    config = replace(
+        base, net=net, steps=args.steps, batch_size=args.batch_size,
+        learning_rate=args.learning_rate,
+    )  # fmt: skip
     train(
         config,
         data_dir=[Path(folder) for folder in args.data],
@@ -103,6 +110,7 @@ def _train(args: argparse.Namespace) -> None:
         validation_dir=Path(args.validation) if args.validation else None,
         export_path=Path(args.export) if args.export else None,
         max_minutes=args.max_minutes,
+        init_weights=Path(args.init) if args.init else None,
     )
 
 
@@ -121,7 +129,9 @@ def _evaluate(args: argparse.Namespace) -> None:
         if segmenter.uses_flow:
             variants[f"{name}/flow"] = (segmenter, True)
         variants[f"{name}/rgb_only"] = (segmenter, False)
-    config = EvaluateConfig(trees=args.trees, frames_per_tree=args.frames_per_tree)
+    config = EvaluateConfig(
+        trees=args.trees, frames_per_tree=args.frames_per_tree, world=args.world
+    )
     results = {}
     for preset in args.presets:
         results[preset] = evaluate_segmenters(variants, preset, config)
@@ -196,6 +206,10 @@ def main(argv: list[str] | None = None) -> int:
     gor.add_argument("--pairs-per-tree", type=int, default=OrchardPairsConfig.pairs_per_tree)
     gor.add_argument("--world", default="orchard", choices=("orchard", "clean"))
     gor.add_argument(
+        "--baseline-range-m", nargs=2, type=float, metavar=("LOW", "HIGH"),
+        default=OrchardPairsConfig.baseline_range_m, help="camera motion between a pair's frames",
+    )  # fmt: skip
+    gor.add_argument(
         "--evaluation", action="store_true", help="trees of seeds 0..trees-1 (held out)"
     )
 
@@ -206,19 +220,23 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--validation", default=None, help="shard folder for validation IoU")
     tr.add_argument("--steps", type=int, default=TrainConfig.steps)
     tr.add_argument("--batch-size", type=int, default=TrainConfig.batch_size)
+    tr.add_argument("--learning-rate", type=float, default=TrainConfig.learning_rate)
     tr.add_argument("--flow", action="store_true", help="RGB + optical flow input (ablation)")
     tr.add_argument(
         "--flow-picture", action="store_true",
         help="RGB + the paper's flow picture, on orchard pairs (generate-orchard data)",
     )  # fmt: skip
     tr.add_argument("--export", default=None, help="write final weights here (+ .config.json)")
+    tr.add_argument("--init", default=None, help="start from these weights (fine-tuning)")
     tr.add_argument("--max-minutes", type=float, default=None, help="stop (resumably) after")
 
     ev = sub.add_parser("evaluate", help="IoU on unseen trees (seeds 0..trees-1), same frames")
     ev.add_argument("--weights", nargs="+", required=True, help="weights files to compare")
     ev.add_argument("--trees", type=int, default=20)
     ev.add_argument("--frames-per-tree", type=int, default=6)
-    ev.add_argument("--presets", nargs="+", default=["paper", "cluttered", "hard"])
+    ev.add_argument("--presets", nargs="+", default=["paper", "cluttered", "hard"],
+                    choices=EVAL_PRESETS)  # fmt: skip
+    ev.add_argument("--world", default="clean", choices=("clean", "orchard"))
     ev.add_argument("--out", default=None, help="write the results as JSON")
 
     ep = sub.add_parser(

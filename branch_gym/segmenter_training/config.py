@@ -130,7 +130,10 @@ class FlowAugmentConfig:
     Attributes:
         exact_probability: Use the renderer's exact flow (corrupted below); else DIS on the
             augmented frames. Both, so that the network leans on no one method's artefacts
-            (the issue; our split).
+            (the issue; our split). DIS is computed over the pair's own baseline (>= 7.5 mm,
+            the pairing the segmenter runs with), where it often loses the thin tree
+            (recon.segmentation.flow.DenseFlowConfig's benchmark): the network learns what that
+            flow is worth.
         dis_presets: DIS presets drawn for the computed flow (the segmenter's is ultrafast).
         dis_weights: Their probabilities.
         smooth_sigma_range_px: Gaussian smoothing of the exact flow (learned flows bleed
@@ -149,7 +152,7 @@ class FlowAugmentConfig:
 
     exact_probability: float = 0.5
     dis_presets: tuple[str, ...] = ("ultrafast", "fast", "medium")
-    dis_weights: tuple[float, ...] = (0.5, 0.3, 0.2)
+    dis_weights: tuple[float, ...] = (0.6, 0.3, 0.1)
     smooth_sigma_range_px: tuple[float, float] = (0.0, 3.0)
     coarse_probability: float = 0.5
     coarse_factor: int = 4
@@ -196,6 +199,8 @@ class OrchardAugmentConfig:
         hue_shift_range_deg: Global hue shift of both frames (bark and sky colours).
         saturation_range: Global saturation gain.
         flip_probability: Horizontal flip (the flow's u flips with it).
+        distractor_probability: Paste a copy of the scanned tree behind it that moves like the
+            background (a negative only parallax tells apart: the paper's cue; our addition).
     """
 
     camera: AugmentConfig = field(default_factory=AugmentConfig)
@@ -203,6 +208,7 @@ class OrchardAugmentConfig:
     hue_shift_range_deg: tuple[float, float] = (-15.0, 15.0)
     saturation_range: tuple[float, float] = (0.5, 1.3)
     flip_probability: float = 0.5
+    distractor_probability: float = 0.3
 
     def to_dict(self) -> dict:
         """Plain JSON-able values."""

@@ -1,9 +1,10 @@
 """IoU of a segmenter against the renderer's labels, on trees never trained on.
 
 Evaluation trees are seeds ``EVAL_SEED_OFFSET + i`` (0, 1, ...; training seeds are >= 1e6) of a
-tree preset, scanned as in ``eval.py``: the camera starts at the home pose (0.20 m from the
-primary, 0.275 m high) and climbs straight up; every ``frame_spacing_m`` a frame is segmented,
-with the frame ``previous_offset_m`` of climb before it as the previous frame (flow input).
+tree preset in the clean or the orchard world, scanned as in ``eval.py``: the camera starts at
+the home pose (0.20 m from the primary, 0.275 m high) and climbs straight up; every
+``frame_spacing_m`` a frame is segmented, with the frame ``previous_offset_m`` of climb before
+it as the previous frame (flow input; 10 mm, past the paper's 7.5 mm pairing threshold).
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ class EvaluateConfig:
         previous_offset_m: Climb between the previous frame and the scored one (the modeler's
             10 mm iteration spacing, paper IV).
         speed_mps: Climb speed.
+        world: ``"clean"`` or ``"orchard"`` (:meth:`WorldConfig.preset`).
     """
 
     trees: int = 20
@@ -42,11 +44,12 @@ class EvaluateConfig:
     frame_spacing_m: float = 0.06
     previous_offset_m: float = 0.01
     speed_mps: float = 0.025
+    world: str = "clean"
 
 
 def render_eval_frames(preset: str, seed: int, config: EvaluateConfig):
     """Yield (previous_rgb, rgb, labels) along a straight-up scan of tree ``seed``."""
-    world = World(WorldConfig(tree=preset_tree_config(preset)))
+    world = World(WorldConfig.preset(config.world, preset_tree_config(preset)))
     try:
         world.reset(seed)
         up = np.array([0.0, -config.speed_mps, 0.0, 0.0, 0.0, 0.0])
@@ -73,7 +76,7 @@ def evaluate_segmenters(
 
     Args:
         variants: name -> (segmenter, use_previous); use_previous False: RGB only.
-        preset: ``paper``, ``cluttered`` or ``hard``.
+        preset: A tree preset (:data:`~branch_gym.segmenter_training.generate.EVAL_PRESETS`).
         config: Trees and frames.
         progress: Show a tqdm bar.
 

@@ -37,6 +37,7 @@ CLASS_PRIMARY = 1
 CLASS_SECONDARY = 2
 CLASS_CLUTTER = 3  # renderer's background trees, wires (labels >= 100): not the scanned tree
 PRESETS = ("paper", "cluttered", "hard")
+EVAL_PRESETS = (*PRESETS, "tall_spindle", "ufo")  # TreeConfig class methods
 _FIRST_CLUTTER_LABEL = 100  # renderer convention: 100 + k is clutter object k
 
 
@@ -55,9 +56,9 @@ def branch_mask(labels: np.ndarray) -> np.ndarray:
 
 
 def preset_tree_config(name: str) -> TreeConfig:
-    """The tree distribution of a preset name (``paper``, ``cluttered`` or ``hard``)."""
-    if name not in PRESETS:
-        raise ValueError(f"tree preset must be one of {PRESETS}, got {name!r}")
+    """The tree distribution of a preset name (one of :data:`EVAL_PRESETS`)."""
+    if name not in EVAL_PRESETS:
+        raise ValueError(f"tree preset must be one of {EVAL_PRESETS}, got {name!r}")
     return getattr(TreeConfig, name)()
 
 

@@ -89,6 +89,45 @@ def corrupt_exact_flow(
     return flow
 
 
+def add_far_copy(
+    rgb_pair: np.ndarray, exact_flow: np.ndarray, target: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray]:
+    """Paste a copy of the scanned tree behind it, moving like the background: a negative.
+
+    The copy looks exactly like the tree (colour alone cannot tell them apart) but moves with
+    the row behind (the median flow of the frame's other pixels, in both frames at one place):
+    only the parallax says it is not the scanned tree. It is pasted only where the tree is not
+    (it stands behind it), at a random sideways offset.
+
+    Args:
+        rgb_pair: (2, H, W, 3) uint8 earlier and current frame.
+        exact_flow: (H, W, 2) current-to-earlier flow (pixels).
+        target: (H, W) bool scanned tree in the current frame.
+        rng: Draws the offset.
+
+    Returns:
+        (the pair with the copy, the flow with the copy's background motion).
+    """
+    w = target.shape[1]
+    if target.sum() < 50 or target.all():
+        return rgb_pair, exact_flow
+    shift = int(rng.integers(w // 6, w // 2)) * (1 if rng.random() < 0.5 else -1)
+    copy = np.roll(target, shift, axis=1)
+    copy[:, : max(shift, 0)] = False
+    copy[:, w + min(shift, 0) :] = False
+    copy &= ~target
+    if not copy.any():
+        return rgb_pair, exact_flow
+    background = np.median(exact_flow[~target].reshape(-1, 2), axis=0)
+    tree_pixels = np.roll(rgb_pair[1], shift, axis=1)
+    pair = rgb_pair.copy()
+    for frame in pair:  # the same place in both frames: (near) still, like the far row
+        frame[copy] = tree_pixels[copy]
+    flow = np.array(exact_flow, np.float32)
+    flow[copy] = background
+    return pair, flow
+
+
 def _turn(flow: np.ndarray, rng: np.random.Generator, config: FlowAugmentConfig) -> np.ndarray:
     """Flow vectors turned by a random angle, mirrored first with ``mirror_probability``."""
     u, v = flow[..., 0], flow[..., 1]
@@ -120,6 +159,9 @@ def training_frame(
     Returns:
         ((6, h, w) float32 network input, (h, w) bool target).
     """
+    target = branch_mask(labels)
+    if rng.random() < config.distractor_probability:
+        rgb_pair, exact_flow = add_far_copy(rgb_pair, exact_flow, target, rng)
     frames = camera_effects(rgb_pair, rng, config.camera)
     frames = _recolour(frames, rng, config)
     flow_config = config.flow
@@ -133,7 +175,7 @@ def training_frame(
             preset = flow_config.dis_presets[rng.choice(len(weights), p=weights / weights.sum())]
             flow = compute_flow(frames[0], frames[1], DenseFlowConfig(preset=str(preset)))
         picture = flow_to_picture(_turn(flow, rng, flow_config))
-    current, target = frames[1], branch_mask(labels)
+    current = frames[1]
     if rng.random() < config.flip_probability:  # a mirrored world: the picture mirrors too
         current, target = current[:, ::-1], target[:, ::-1]
         picture = None if picture is None else picture[:, ::-1]
@@ -150,7 +192,7 @@ class OrchardPairBatches(torch.utils.data.Dataset):
     """Batch ``k`` of a run on orchard pairs: ((B, 6, h, w) input, (B, 1, h, w) target).
 
     Args:
-        data: Arrays of :func:`branch_gym.segmenter_training.orchard_pairs.load_orchard_shards`.
+        data: Arrays of :func:`~branch_gym.segmenter_training.orchard_pairs.load_orchard_shards`.
         config: Randomisation.
         steps: Number of batches.
         batch_size: Frames per batch.

@@ -19,7 +19,8 @@ holding, for N pairs:
 * ``labels``: (N, H, W) uint16, the current frame's instance labels
   (:mod:`branch_gym.sim.scene.labels`); the target is ``1 <= label < 100`` (the scanned tree);
 * ``seeds``: (N,) int64 tree seeds; ``architectures``: (N,) int8 index into
-  ``OrchardPairsConfig.architectures``.
+  ``OrchardPairsConfig.architectures``;
+* ``baseline_m``: (N,) float32 camera translation between the two frames (m).
 
 Tree seeds come from a Generator seeded by the data set seed and the shard index: shard k is
 the same whatever shards were made before it, and the seeds lie in the training range, disjoint
@@ -76,8 +77,11 @@ class OrchardPairsConfig:
             views: the paper's 22.5-45 deg and more).
         roll_range_deg: Camera roll before the pairs.
         climb_range_m: Climb before each pair (frames along the scan).
-        baseline_range_m: Camera translation between the frames of a pair; the lower bound is
-            the paper's pairing threshold (FramePairingConfig.min_translation_m, 7.5 mm).
+        baseline_range_m: Camera translation between the frames of a pair. The paper pairs
+            frames >= 7.5 mm apart (FramePairingConfig.min_translation_m) for its learned flow;
+            DIS follows the thin tree only at shorter baselines (~2.5 mm,
+            :class:`recon.segmentation.flow.DenseFlowConfig`), so data sets for the DIS flow
+            are rendered with a shorter range.
         rotation_range_deg: Camera rotation between them, below the paper's 0.5 deg
             (FramePairingConfig.max_rotation_deg).
         lateral_fraction: Largest sideways and forward component of the pair's motion, as a
@@ -125,7 +129,12 @@ class OrchardPairsConfig:
             _require_range(self, name, 0.0)
         _require_range(self, "orbit_range_deg")
         _require_range(self, "roll_range_deg")
-        _require_range(self, "baseline_range_m", _PAIRING.min_translation_m)
+        _require_range(self, "baseline_range_m", 0.0)
+        if self.baseline_range_m[0] <= 0.0:
+            raise ValueError(
+                "OrchardPairsConfig.baseline_range_m must start above 0 m (the frames must "
+                f"differ), got {self.baseline_range_m!r}"
+            )
         _require_range(self, "rotation_range_deg", 0.0)
         if self.rotation_range_deg[1] >= _PAIRING.max_rotation_deg:
             raise ValueError(
@@ -191,7 +200,13 @@ def render_orchard_pairs(
         z_target_m=_uniform(rng, config.z_target_range_m),
         scan_start_height_m=_uniform(rng, config.start_height_range_m),
     )
-    out: dict[str, list] = {"rgb": [], "flow": [], "labels": [], "architecture": architecture}
+    out: dict[str, list] = {
+        "rgb": [],
+        "flow": [],
+        "labels": [],
+        "baseline_m": [],
+        "architecture": architecture,
+    }
     world = World(world_config)
     try:
         world.reset(tree_seed)
@@ -219,6 +234,9 @@ def render_orchard_pairs(
             out["rgb"].append(np.stack([earlier.rgb, current.rgb]))
             out["flow"].append(np.nan_to_num(flow, nan=0.0).astype(np.float16))
             out["labels"].append(current.labels.astype(np.uint16))
+            out["baseline_m"].append(
+                float(np.linalg.norm(world.T_world_camera[:3, 3] - T_earlier[:3, 3]))
+            )
     finally:
         world.close()
     return out
@@ -237,7 +255,14 @@ def generate_orchard_shard(
             tables), instead of random training seeds (>= TRAIN_SEED_LOW).
     """
     rng = np.random.default_rng([seed, index])
-    parts: dict[str, list] = {"rgb": [], "flow": [], "labels": [], "seeds": [], "arch": []}
+    parts: dict[str, list] = {
+        "rgb": [],
+        "flow": [],
+        "labels": [],
+        "baseline_m": [],
+        "seeds": [],
+        "arch": [],
+    }
     first_tree = index * config.trees_per_shard
     for tree in range(first_tree, min(config.trees, first_tree + config.trees_per_shard)):
         drawn = int(rng.integers(TRAIN_SEED_LOW, TRAIN_SEED_HIGH))
@@ -247,7 +272,7 @@ def generate_orchard_shard(
         except (RuntimeError, ValueError) as error:  # e.g. no home pose for this tree
             logger.warning("tree seed %d skipped: %s", tree_seed, error)
             continue
-        for key in ("rgb", "flow", "labels"):
+        for key in ("rgb", "flow", "labels", "baseline_m"):
             parts[key] += pairs[key]
         parts["seeds"] += [tree_seed] * len(pairs["rgb"])
         parts["arch"] += [pairs["architecture"]] * len(pairs["rgb"])
@@ -256,12 +281,14 @@ def generate_orchard_shard(
         "rgb": np.asarray(parts["rgb"], np.uint8).reshape(-1, 2, h, w, 3),
         "flow": np.asarray(parts["flow"], np.float16).reshape(-1, h, w, 2),
         "labels": np.asarray(parts["labels"], np.uint16).reshape(-1, h, w),
+        "baseline_m": np.asarray(parts["baseline_m"], np.float32),
         "seeds": np.asarray(parts["seeds"], np.int64),
         "architectures": np.asarray(parts["arch"], np.int8),
     }
 
 
 ORCHARD_KEYS = ("rgb", "flow", "labels", "seeds", "architectures")
+_OPTIONAL_KEYS = {"baseline_m": np.nan}  # shards written before it: unknown baseline
 
 
 def load_orchard_shards(data_dir: Path) -> dict[str, np.ndarray]:
@@ -288,4 +315,7 @@ def load_orchard_shards(data_dir: Path) -> dict[str, np.ndarray]:
                 raise ValueError(f"{path} is not an orchard shard: it lacks {missing}")
             for key in ORCHARD_KEYS:
                 parts[key].append(shard[key])
+            for key, fill in _OPTIONAL_KEYS.items():
+                value = shard[key] if key in shard else np.full(len(shard["seeds"]), fill)
+                parts.setdefault(key, []).append(value.astype(np.float32))
     return {key: np.concatenate(value) for key, value in parts.items()}

@@ -40,7 +40,7 @@ from recon.segmentation.inputs import make_input
 from recon.segmentation.metrics import pooled_iou
 from recon.segmentation.network import SegmenterNet, count_parameters
 from recon.segmentation.segmenter import LearnedSegmenter
-from recon.segmentation.weights import save_weights
+from recon.segmentation.weights import load_weights, save_weights
 
 logger = logging.getLogger(__name__)
 
@@ -208,6 +208,7 @@ def train(
     max_minutes: float | None = None,
     workers: int = 1,
     progress: bool = True,
+    init_weights: Path | None = None,
 ) -> TrainResult:
     """Train (or resume training) a segmenter.
 
@@ -222,6 +223,8 @@ def train(
         max_minutes: Stop (checkpointed, resumable) after this many minutes.
         workers: DataLoader worker processes (0: prepare batches in this process).
         progress: Show a tqdm bar.
+        init_weights: Start from this weights file (fine-tuning; its architecture must be
+            ``config.net``) instead of a random init; a run's own checkpoint wins.
 
     Returns:
         The model and its history.
@@ -238,6 +241,15 @@ def train(
     val = load(validation_dir) if validation_dir else None
     torch.manual_seed(seed)
     model = SegmenterNet(config.net)
+    if init_weights is not None:
+        init_model, _, _, _ = load_weights(init_weights)
+        if init_model.config != config.net:
+            raise ValueError(
+                f"--init weights {init_weights} have architecture {init_model.config}, the run "
+                f"trains {config.net}"
+            )
+        model.load_state_dict(init_model.state_dict())
+        logger.info("starting from %s", init_weights)
     optimiser = torch.optim.AdamW(
         model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
     )

@@ -1,8 +1,9 @@
 """The learned segmenter: RGB (+ the previous frame) -> branch mask, and how to load it.
 
 ``load_segmenter("learned")`` loads the shipped weights, package data of this package
-(``recon/segmentation/weights/segmenter.pt``, its card ``segmenter.md`` beside it), in a checkout
-and in any installed copy alike. ``load_segmenter("learned:PATH")`` loads any other weights file.
+(:data:`SHIPPED_WEIGHTS`, its card beside it), in a checkout and in any installed copy alike.
+``load_segmenter("learned:PATH")`` loads any other weights file, such as the RGB-only network of
+the clean world that was the default before (:data:`RGB_CLEAN_WEIGHTS`).
 """
 
 from __future__ import annotations
@@ -24,8 +25,11 @@ from recon.segmentation.weights import load_weights
 logger = logging.getLogger(__name__)
 
 LEARNED_SPEC = "learned"
+_WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 # The shipped weights: package data beside this module.
-SHIPPED_WEIGHTS = Path(__file__).resolve().parent / "weights" / "segmenter.pt"
+SHIPPED_WEIGHTS = _WEIGHTS_DIR / "orchard_flow.pt"
+# The RGB-only network trained on the clean world (issue 15), loadable as learned:PATH.
+RGB_CLEAN_WEIGHTS = _WEIGHTS_DIR / "rgb_clean.pt"
 
 
 def default_weights_path() -> Path:
