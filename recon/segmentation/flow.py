@@ -103,6 +103,16 @@ def _check_rgb(image: object, name: str) -> np.ndarray:
     return image
 
 
+def _check_flow(flow: object) -> None:
+    """Raise ValueError unless ``flow`` is a floating (H, W, 2) numpy array."""
+    if not isinstance(flow, np.ndarray):
+        raise ValueError(f"flow must be a numpy array, got {type(flow).__name__}")
+    if not np.issubdtype(flow.dtype, np.floating):
+        raise ValueError(f"flow must be a floating array (pixels), got {flow.dtype}")
+    if flow.ndim != 3 or flow.shape[2] != 2:
+        raise ValueError(f"flow must have shape (H, W, 2), got {flow.shape}")
+
+
 def flow_to_picture(flow: np.ndarray) -> np.ndarray:
     """The Middlebury colour-wheel picture of a flow field, normalised by its largest flow.
 
@@ -134,12 +144,7 @@ def flow_to_picture(flow: np.ndarray) -> np.ndarray:
     >>> flow_to_picture(np.array([[[2.0, 0.0], [1.0, 0.0]]]))[0].tolist()
     [[255, 0, 0], [255, 127, 127]]
     """
-    if not isinstance(flow, np.ndarray):
-        raise ValueError(f"flow must be a numpy array, got {type(flow).__name__}")
-    if not np.issubdtype(flow.dtype, np.floating):
-        raise ValueError(f"flow must be a floating array (pixels), got {flow.dtype}")
-    if flow.ndim != 3 or flow.shape[2] != 2:
-        raise ValueError(f"flow must have shape (H, W, 2), got {flow.shape}")
+    _check_flow(flow)
     if flow.dtype == np.float16:
         flow = flow.astype(np.float32)
     known = np.isfinite(flow).all(axis=2)
@@ -198,12 +203,7 @@ def flow_to_picture_fast(flow: np.ndarray) -> np.ndarray:
     Raises:
         ValueError: ``flow`` is not a floating (H, W, 2) numpy array.
     """
-    if not isinstance(flow, np.ndarray):
-        raise ValueError(f"flow must be a numpy array, got {type(flow).__name__}")
-    if not np.issubdtype(flow.dtype, np.floating):
-        raise ValueError(f"flow must be a floating array (pixels), got {flow.dtype}")
-    if flow.ndim != 3 or flow.shape[2] != 2:
-        raise ValueError(f"flow must have shape (H, W, 2), got {flow.shape}")
+    _check_flow(flow)
     flow = flow.astype(np.float32, copy=False)
     if not np.isfinite(flow.sum()):  # a scalar test first: the per-pixel one costs 4 ms
         known = np.isfinite(flow).all(axis=2)
