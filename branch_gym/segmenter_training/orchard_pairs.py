@@ -288,7 +288,7 @@ def generate_orchard_shard(
 
 
 ORCHARD_KEYS = ("rgb", "flow", "labels", "seeds", "architectures")
-_OPTIONAL_KEYS = {"baseline_m": np.nan}  # shards written before it: unknown baseline
+"""The arrays training reads (``baseline_m`` is a record of the pair, not read)."""
 
 
 def load_orchard_shards(data_dir: Path) -> dict[str, np.ndarray]:
@@ -315,7 +315,4 @@ def load_orchard_shards(data_dir: Path) -> dict[str, np.ndarray]:
                 raise ValueError(f"{path} is not an orchard shard: it lacks {missing}")
             for key in ORCHARD_KEYS:
                 parts[key].append(shard[key])
-            for key, fill in _OPTIONAL_KEYS.items():
-                value = shard[key] if key in shard else np.full(len(shard["seeds"]), fill)
-                parts.setdefault(key, []).append(value.astype(np.float32))
     return {key: np.concatenate(value) for key, value in parts.items()}
