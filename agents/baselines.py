@@ -46,15 +46,23 @@ def parse_periodic_spec(spec: str) -> tuple[float, float] | None:
     Raises:
         ValueError: a malformed ``periodic`` spec or bad parameters (naming the valid form).
     """
-    kind, *args = spec.split(":")
-    if kind != PERIODIC_KIND:
+    return parse_angle_frequency_spec(spec, PERIODIC_KIND, "periodic:22.5:1.5")
+
+
+def parse_angle_frequency_spec(spec: str, kind: str, example: str) -> tuple[float, float] | None:
+    """(angle_deg, frequency) of a ``KIND:ANGLE:FREQ`` spec; None for a spec of another kind.
+
+    Raises:
+        ValueError: a malformed spec of ``kind`` or bad parameters (naming the valid form).
+    """
+    spec_kind, *args = spec.split(":")
+    if spec_kind != kind:
         return None
     try:
         angle_deg, frequency = (float(arg) for arg in args)
     except ValueError:
         raise ValueError(
-            f"malformed policy spec {spec!r}: expected 'periodic:ANGLE_DEG:FREQ' "
-            "(e.g. 'periodic:22.5:1.5')"
+            f"malformed policy spec {spec!r}: expected '{kind}:ANGLE_DEG:FREQ' (e.g. '{example}')"
         ) from None
     check_periodic(angle_deg, frequency, THETA_MAX_DEG)
     return angle_deg, frequency
@@ -122,6 +130,30 @@ class BaselineAgent:
             **kwargs,
         )
         agent.hold_action = config.action_type == "discrete_hold"
+        return agent
+
+    @classmethod
+    def for_session_env(cls, env: Any, *args: Any) -> Any:
+        """An agent that reads a single (possibly wrapped) env's scan session.
+
+        ``cls(session, *args, **action_settings)`` with the env's action settings.
+
+        Raises:
+            ValueError: ``env`` is not a single ``BranchScan`` env (a vector env, another env).
+        """
+        session = getattr(getattr(env, "unwrapped", env), "session", None)
+        if session is None:
+            raise ValueError(f"{cls.__name__} needs a single BranchScan env, got {env!r}")
+        base = BaselineAgent.for_env(env)
+        agent = cls(
+            session,
+            *args,
+            theta_max_deg=base.theta_max_deg,
+            action_angles_deg=base.action_angles_deg,
+            trigger_angles_deg=base.trigger_angles_deg,
+            hold_tolerance_deg=base.hold_tolerance_deg,
+        )
+        agent.hold_action = base.hold_action  # discrete_hold: action 0 holds
         return agent
 
     def predict(

@@ -5,6 +5,8 @@ spec                       agent
 =========================  =====================================================================
 ``none``                   :class:`agents.baselines.NoRotationAgent` (paper Table I, 0 / 0)
 ``periodic:ANGLE:FREQ``    :class:`agents.baselines.PeriodicAgent`, the paper's controller
+``ftl:ANGLE:FREQ``         :class:`agents.ftl.FtlAgent`, the authors' code: a stage every FoV /
+                           (2 FREQ), targets away from model branches pointing at the camera
 ``disagreement[:ANGLE]``   :class:`agents.disagreement.DisagreementAgent`
 ``ppo:PATH[@SECONDS]``     a trained SB3 PPO model (:func:`agents.ppo.load_policy`; PATH may
                            name a shipped model, ``ppo:ppo_dagger_v2``); a model conditioned on
@@ -21,6 +23,8 @@ from typing import Any
 from agents.baselines import NO_ROTATION_SPEC, NoRotationAgent, PeriodicAgent, parse_periodic_spec
 from agents.disagreement import SPEC_KIND as DISAGREEMENT_KIND
 from agents.disagreement import DisagreementAgent, parse_disagreement_spec
+from agents.ftl import SPEC_KIND as FTL_KIND
+from agents.ftl import FtlAgent, parse_ftl_spec
 from agents.ppo import PPO_SPEC_PREFIX, check_ppo_spec, load_policy, spec_env_id, split_price
 from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
 from agents.privileged import PrivilegedAgent
@@ -28,7 +32,8 @@ from agents.protocol import Agent
 from branch_gym.env.versions import env_version
 
 SPEC_FORMS = (
-    "'none', 'periodic:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]', 'privileged' or 'ppo:PATH'"
+    "'none', 'periodic:ANGLE_DEG:FREQ', 'ftl:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]', "
+    "'privileged' or 'ppo:PATH'"
 )
 
 
@@ -46,6 +51,8 @@ def check_spec(spec: str) -> None:
             raise ValueError(str(exc)) from exc
     elif spec.split(":")[0] == DISAGREEMENT_KIND:
         parse_disagreement_spec(spec)
+    elif spec.split(":")[0] == FTL_KIND:
+        parse_ftl_spec(spec)
     elif spec not in (NO_ROTATION_SPEC, PRIVILEGED_KIND) and parse_periodic_spec(spec) is None:
         raise ValueError(f"unknown policy spec {spec!r}: expected {SPEC_FORMS}")
 
@@ -86,6 +93,9 @@ def make_agent(spec: str, env: Any) -> Agent:
         return load_policy(check_ppo_spec(spec), env)
     if spec.split(":")[0] == DISAGREEMENT_KIND:
         return DisagreementAgent.for_env(env, parse_disagreement_spec(spec))
+    ftl = parse_ftl_spec(spec)
+    if ftl is not None:
+        return FtlAgent.for_env(env, ftl)
     if spec == NO_ROTATION_SPEC:
         return NoRotationAgent.for_env(env)
     if spec == PRIVILEGED_KIND:

@@ -84,21 +84,7 @@ class PrivilegedAgent(BaselineAgent):
     @classmethod
     def for_env(cls, env: Any, config: PrivilegedConfig | None = None) -> PrivilegedAgent:
         """The agent for a single (possibly wrapped) ``BranchScan`` env."""
-        unwrapped = getattr(env, "unwrapped", env)
-        session = getattr(unwrapped, "session", None)
-        if session is None:
-            raise ValueError(f"the privileged policy needs a single BranchScan env, got {env!r}")
-        base = BaselineAgent.for_env(env)
-        agent = cls(
-            session,
-            config,
-            theta_max_deg=base.theta_max_deg,
-            action_angles_deg=base.action_angles_deg,
-            trigger_angles_deg=base.trigger_angles_deg,
-            hold_tolerance_deg=base.hold_tolerance_deg,
-        )
-        agent.hold_action = base.hold_action  # v1's action 0 holds, k >= 1 are the angles
-        return agent
+        return cls.for_session_env(env, config)
 
     def target_angle_deg(self) -> float:
         """The target angle for the session's current state (deg)."""

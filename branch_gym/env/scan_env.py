@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import logging
 from dataclasses import replace
 from typing import Any
@@ -355,6 +356,21 @@ class BranchScanEnv(gym.Env):
     def result(self) -> ScanResult:
         """The current scan scored against the ground truth (``policy="env"``)."""
         return score_scan(self._session, "env")
+
+    def target_angle_deg(self, action: Any, current_angle_deg: float | None = None) -> float:
+        """The target angle (deg) that ``action`` commands from ``current_angle_deg``.
+
+        Side-effect free: a trigger action's cycle does not advance.
+
+        Args:
+            action: An action of this env's space.
+            current_angle_deg: The camera's angle about the branch (deg); None: the angle now.
+
+        Raises:
+            ValueError: a bad action (see :meth:`step`).
+        """
+        current = self._session.angle_deg if current_angle_deg is None else current_angle_deg
+        return copy.copy(self._actions).to_angle_deg(action, float(current))
 
     # ------------------------------------------------------------------ internals
     def _score(self, env_ms: dict[str, float]) -> TreeMetrics:

@@ -62,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         required=True,
         metavar="SPEC",
         help="rotation policies (table columns, in this order): none | periodic:ANGLE_DEG:FREQ "
+        "| ftl:ANGLE_DEG:PAN_FREQ "
         "| disagreement[:ANGLE_DEG] | privileged | ppo:PATH_OR_SHIPPED_NAME[@SECONDS] (shipped: "
         f"{', '.join(shipped_models())})",
     )

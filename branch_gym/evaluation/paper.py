@@ -5,11 +5,17 @@ data", Table I, "Simulated Experiments" columns (60 trials each; mean (std); als
 ``shared/spec/reference.md``). The LaTeX source prints the PB radius of the 45 / 2.5 column as
 "(0.5) (0.4)"; it is read as 0.5 (0.4). The paper reports no scan time, rotation count, failure
 count or duplicate rate.
+
+The authors' experiment script ran ``pan_frequency`` 1 and 2 for the columns labelled 1.5 and
+2.5 (``shared/spec/reference.md``): ``ftl:ANGLE:1`` and ``ftl:ANGLE:2`` (:mod:`agents.ftl`) are
+the controllers behind those columns, and are printed next to them; ``periodic:ANGLE:FREQ``
+follows the paper's words for the same labels.
 """
 
 from __future__ import annotations
 
 from agents.baselines import NO_ROTATION_SPEC, parse_periodic_spec
+from agents.ftl import parse_ftl_spec
 
 # (rotation angle deg, rotations per vertical FoV) -> summary-shaped values.
 PAPER_TABLE_I: dict[tuple[float, float], dict[str, object]] = {
@@ -60,6 +66,9 @@ PAPER_TABLE_I: dict[tuple[float, float], dict[str, object]] = {
     },
 }
 
+# pan_frequency the authors' script ran -> the frequency their analysis labels it with.
+AUTHORS_RUN_FREQUENCY_LABELS = {1.0: 1.5, 2.0: 2.5}
+
 
 def paper_column(policy: str) -> dict[str, object] | None:
     """The paper's Table I column for a policy spec, or None when the paper has no such column."""
@@ -67,6 +76,10 @@ def paper_column(policy: str) -> dict[str, object] | None:
         return PAPER_TABLE_I[(0.0, 0.0)]
     try:
         periodic = parse_periodic_spec(policy)
-    except ValueError:  # not a valid periodic spec: no paper column
+        ftl = parse_ftl_spec(policy)
+    except ValueError:  # not a valid spec: no paper column
         return None
+    if ftl is not None:  # the frequency the script ran -> the column's label
+        label = AUTHORS_RUN_FREQUENCY_LABELS.get(ftl.pan_frequency)
+        return None if label is None else PAPER_TABLE_I.get((ftl.angle_deg, label))
     return None if periodic is None else PAPER_TABLE_I.get(periodic)

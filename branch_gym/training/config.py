@@ -121,8 +121,10 @@ class TrainConfig:
         seed: The run's seed: tree seeds of the training episodes (``seeds.py``), PPO's
             network initialisation and action sampling. In ``[0, MAX_RUN_SEEDS)``.
         tracker: "lk" or "oracle" (exact tracks: faster training).
-        segmenter: "gt" or "noisy:mild" | "noisy:moderate" | "noisy:severe".
-        tree: Tree distribution preset: "paper", "cluttered" or "hard".
+        segmenter: "gt", "noisy:mild" | "noisy:moderate" | "noisy:severe", or "learned[:PATH]"
+            (from pixels).
+        tree: Tree distribution preset: "paper", "cluttered", "hard", "tall_spindle" or "ufo".
+        world: "clean" (the paper's world) or "orchard" (sky, row, trellis, camera model).
         end_height_m: Scan end height (m); None keeps the scan default (0.75 m, paper V-A).
         speed_mps: Scan speed (m/s); None keeps the scan default (0.025 m/s).
         render_tracking_frames: Render every tracking frame (the scan default). False renders
@@ -171,6 +173,7 @@ class TrainConfig:
     tracker: str = "lk"
     segmenter: str = "gt"
     tree: str = "paper"
+    world: str = "clean"
     end_height_m: float | None = None
     speed_mps: float | None = None
     render_tracking_frames: bool = True
@@ -226,6 +229,7 @@ class TrainConfig:
             "tracker": self.tracker,
             "segmenter": self.segmenter,
             "tree": self.tree,
+            "world": self.world,
         }
         for name in ("end_height_m", "speed_mps"):
             if getattr(self, name) is not None:

@@ -14,8 +14,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from branch_gym.config_utils import load_config
+from branch_gym.env.config import TREE_PRESETS
 from branch_gym.env.versions import ENV_IDS
+from branch_gym.sim.world import WORLDS
 from branch_gym.training.imitation.config import ImitationConfig
+from branch_gym.training.imitation.cost_to_go import ROLLOUTS
 from branch_gym.training.imitation.rounds import imitate
 
 EXIT_USAGE = 2
@@ -34,6 +37,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--env", choices=ENV_IDS, help="a discrete env id")
     parser.add_argument("--tracker", choices=("lk", "oracle"))
     parser.add_argument("--segmenter", help="gt | noisy:mild|moderate|severe | learned[:PATH]")
+    parser.add_argument("--world", choices=WORLDS, help="clean (default) or orchard")
+    parser.add_argument("--tree", choices=TREE_PRESETS, help="tree distribution preset")
+    parser.add_argument(
+        "--init-model", help="start the students from this model's weights (same env and network)"
+    )
     parser.add_argument(
         "--all-tracking-frames",
         action="store_true",
@@ -71,6 +79,17 @@ def build_parser() -> argparse.ArgumentParser:
         help="price-conditioned fit: rotation labels weigh rotation-weight * value / S",
     )
     parser.add_argument("--tree-offset", type=int, help="skip this many training trees")
+    parser.add_argument(
+        "--cost-to-go-states",
+        type=int,
+        metavar="K",
+        help="price K states of each episode by cost-to-go branches (0: plain DAgger)",
+    )
+    parser.add_argument(
+        "--rollout", choices=ROLLOUTS, help="who plays after a branch's action (default student)"
+    )
+    parser.add_argument("--expert-label-weight", type=float, help="weight of the expert labels")
+    parser.add_argument("--cost-to-go-weight", type=float, help="weight of the expected regret")
     return parser
 
 
@@ -88,6 +107,9 @@ def config_from_args(args: argparse.Namespace) -> ImitationConfig:
         "env_id": args.env,
         "tracker": args.tracker,
         "segmenter": args.segmenter,
+        "world": args.world,
+        "tree": args.tree,
+        "init_model": args.init_model,
         "seed": args.seed,
         "recurrent": True if args.recurrent else None,
         # pose-only tracking frames need the oracle tracker
@@ -108,6 +130,10 @@ def config_from_args(args: argparse.Namespace) -> ImitationConfig:
         "rotation_weight": args.rotation_weight,
         "reference_value_s": args.reference_value,
         "tree_offset": args.tree_offset,
+        "cost_to_go_states": args.cost_to_go_states,
+        "rollout": args.rollout,
+        "expert_label_weight": args.expert_label_weight,
+        "cost_to_go_weight": args.cost_to_go_weight,
     }
     return replace(config, train=train, **{k: v for k, v in changes.items() if v is not None})
 

@@ -9,6 +9,7 @@ from branch_gym.config_utils import check_keys
 from branch_gym.env.versions import env_version
 from branch_gym.sim.validation import require_int, require_non_negative, require_positive
 from branch_gym.training.config import PPOConfig, TrainConfig
+from branch_gym.training.imitation.cost_to_go import ROLLOUTS
 from branch_gym.training.seeds import train_seed_range
 
 ROUNDS_LOG = "rounds.jsonl"
@@ -17,7 +18,8 @@ FINAL_MODEL = "model.zip"
 # Settings a resumed run may change: the number of rounds and how the labels are fitted.
 RESUMABLE_CHANGES = (
     "rounds", "epochs", "batch_size", "learning_rate", "weight_decay", "validation_fraction",
-    "from_scratch", "rotation_weight", "reference_value_s",
+    "from_scratch", "rotation_weight", "reference_value_s", "expert_label_weight",
+    "cost_to_go_weight",
 )  # fmt: skip
 # A student is a classifier of the expert's action: the env must offer a few actions.
 DISCRETE_ACTION_TYPES = ("discrete", "discrete_hold")
@@ -73,6 +75,22 @@ class ImitationConfig:
             Our choice for the price-conditioned student: 100 s, the v0 reward's price.
         tree_offset: Skip this many of the run's training trees (so a DAgger run and a PPO run
             of the same seed can use different trees).
+        cost_to_go_states: States of each played episode priced by cost-to-go branches (every
+            distinct action taken once, then rolled out to the episode's end:
+            :mod:`~branch_gym.training.imitation.cost_to_go`); 0: plain DAgger. Each costs
+            about as many episodes as there are distinct actions (5 in the v2 env).
+        rollout: Who plays after a branch's action: "student" (the round's student; in round 0,
+            a policy that never turns the camera) or "expert" (AggreVaTe as published). Our choice:
+            "student": under the expert's roll-outs a blind rotation is worth no more than
+            holding, since the expert finds a hidden branch one step later anyway.
+        expert_label_weight: Weight of the expert labels' cross-entropy in the fit (1: DAgger;
+            0: the priced states alone).
+        cost_to_go_weight: Weight of the expected regret on the priced states
+            (:func:`~branch_gym.training.imitation.cost_to_go.expected_regret`, in units of
+            the env's return: a found branch is 1). Our choice: 10; the regret's gradient is
+            about 1 / n_actions of the cross-entropy's at an undecided policy: fitted on 300
+            priced states alone (``tests/test_cost_to_go.py``), weight 1 left a regret of 0.46
+            branch per state after 30 epochs, weight 10 0.03.
 
     With ``train.recurrent`` the student is an sb3-contrib ``RecurrentPPO`` (the same features
     followed by an LSTM, ``MultiInputLstmPolicy``): it plays with its LSTM state carried through
@@ -92,10 +110,24 @@ class ImitationConfig:
     rotation_weight: float = 1.0
     reference_value_s: float | None = None
     tree_offset: int = 0
+    cost_to_go_states: int = 0
+    rollout: str = "student"
+    expert_label_weight: float = 1.0
+    cost_to_go_weight: float = 10.0
 
     def __post_init__(self) -> None:
         require_int(self, "rounds", "episodes", "epochs", "batch_size", minimum=1)
-        require_int(self, "tree_offset", minimum=0)
+        require_int(self, "tree_offset", "cost_to_go_states", minimum=0)
+        require_non_negative(self, "expert_label_weight", "cost_to_go_weight")
+        if self.rollout not in ROLLOUTS:
+            raise ValueError(
+                f"ImitationConfig.rollout must be one of {ROLLOUTS}, got {self.rollout!r}"
+            )
+        if self.cost_to_go_states and self.train.recurrent:
+            raise ValueError(
+                "ImitationConfig.cost_to_go_states needs a feed-forward student (train.recurrent "
+                "False): a branch's roll-out carries no LSTM state"
+            )
         require_positive(self, "learning_rate", "rotation_weight")
         require_non_negative(self, "weight_decay")
         if not 0.0 <= self.validation_fraction < 1.0:

@@ -26,6 +26,7 @@ from scipy.stats import mannwhitneyu
 
 from branch_gym.env.layout import PRICE_KEY
 from branch_gym.training.imitation.config import ImitationConfig
+from branch_gym.training.imitation.cost_to_go import expected_regret
 from branch_gym.training.imitation.data import RoundData, episode_slices
 from branch_gym.training.train import new_model
 
@@ -166,7 +167,7 @@ def fit_student(
     rng: np.random.Generator,
     value_bounds_s: tuple[float, float] | None = None,
 ) -> dict[str, float]:
-    """Fit the policy's action distribution to the expert's labels (weighted cross-entropy).
+    """Fit the policy to the labels: the expert's actions and the priced states' values.
 
     Args:
         model: The student (SB3 PPO or sb3-contrib RecurrentPPO); its policy is trained in
@@ -177,15 +178,19 @@ def fit_student(
         value_bounds_s: The env's branch value bounds (s), for price conditioning
             (:func:`label_weights`).
 
-    The units of the fit (:func:`fit_units`) are single labels for a feed-forward policy and
-    whole episodes for a recurrent one (a minibatch holds as many episodes as make about
-    ``config.batch_size`` labels). A random ``validation_fraction`` of the units is held out;
-    after each epoch the weighted loss on it is measured, and the weights of the best epoch are
-    kept (early stopping).
+    The loss is ``expert_label_weight`` x the weighted cross-entropy of the expert's actions
+    plus ``cost_to_go_weight`` x the expected regret on the steps priced by cost-to-go
+    branches (:func:`~branch_gym.training.imitation.cost_to_go.expected_regret`; feed-forward
+    students only). The units of the fit (:func:`fit_units`) are single labels for a
+    feed-forward policy and whole episodes for a recurrent one (a minibatch holds as many
+    episodes as make about ``config.batch_size`` labels). A random ``validation_fraction`` of
+    the units is held out; after each epoch the loss on it is measured, and the weights of the
+    best epoch are kept (early stopping).
 
     Returns:
-        The epoch kept, the weighted losses and the accuracies of the deterministic action on
-        the fitted and the held-out labels, and the number of held-out labels.
+        The epoch kept, the losses and the accuracies of the deterministic action on the fitted
+        and the held-out labels, the number of held-out labels; with priced steps, their number
+        and the expected regret of the deterministic policy on them.
     """
     import torch
 
@@ -193,6 +198,11 @@ def fit_student(
     units = fit_units(model, data)
     label_weight = label_weights(data, config, value_bounds_s)
     weights = torch.as_tensor(label_weight, dtype=torch.float32)
+    is_priced = np.zeros(len(data.expert_actions), bool)
+    is_priced[data.priced()] = True
+    if is_priced.any() and isinstance(units, EpisodeUnits):
+        raise ValueError("cost-to-go labels need a feed-forward student")
+    values = None if data.action_values is None else np.nan_to_num(data.action_values)
     per_batch = units.per_batch(config.batch_size)
     n_held_out = round(config.validation_fraction * units.count)
     if n_held_out:
@@ -204,10 +214,19 @@ def fit_student(
         policy.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
     )
 
-    def weighted_loss(part: np.ndarray) -> float:
+    def loss_of(part: np.ndarray) -> float:
         index = units.labels(part)
         probabilities = units.probabilities(part, config.batch_size)
-        return weighted_nll(probabilities, data.expert_actions[index], label_weight[index])
+        loss = config.expert_label_weight * weighted_nll(
+            probabilities, data.expert_actions[index], label_weight[index]
+        )
+        priced = is_priced[index]
+        if priced.any() and config.cost_to_go_weight:
+            regret = expected_regret(
+                torch.as_tensor(probabilities[priced]), torch.as_tensor(values[index[priced]])
+            )
+            loss += config.cost_to_go_weight * float(regret)
+        return loss
 
     best_loss, best_state, best_epoch = math.inf, None, 0
     for epoch in range(1, config.epochs + 1):
@@ -215,13 +234,24 @@ def fit_student(
         order = rng.permutation(train)
         for start in range(0, len(order), per_batch):
             part = order[start : start + per_batch]
-            log_prob = units.log_probabilities(part)
-            weighted_nll_step(model, optimizer, log_prob, weights[units.labels(part)])
+            index = units.labels(part)
+            loss = 0.0
+            if config.expert_label_weight:
+                log_prob = units.log_probabilities(part)
+                loss = config.expert_label_weight * weighted_nll_loss(log_prob, weights[index])
+            priced = index[is_priced[index]]
+            if len(priced) and config.cost_to_go_weight:
+                probabilities = _probabilities_with_grad(policy, data, priced)
+                loss = loss + config.cost_to_go_weight * expected_regret(
+                    probabilities, torch.as_tensor(values[priced], dtype=torch.float32)
+                )
+            if isinstance(loss, torch.Tensor):
+                optimiser_step(model, optimizer, loss)
         policy.set_training_mode(False)
         if n_held_out == 0:
             best_epoch = epoch
             continue
-        held_out_loss = weighted_loss(held_out)
+        held_out_loss = loss_of(held_out)
         if held_out_loss < best_loss:
             best_loss, best_epoch = held_out_loss, epoch
             best_state = copy.deepcopy(policy.state_dict())
@@ -234,14 +264,53 @@ def fit_student(
         predicted = units.probabilities(part, config.batch_size).argmax(axis=1)
         return float(np.mean(predicted == data.expert_actions[units.labels(part)]))
 
-    return {
+    scores = {
         "epochs_kept": best_epoch,
-        "train_loss": weighted_loss(train),
+        "train_loss": loss_of(train),
         "held_out_loss": best_loss if n_held_out else math.nan,
         "held_out_labels": len(units.labels(held_out)),
         "train_accuracy": accuracy(train),
         "held_out_accuracy": accuracy(held_out),
     }
+    if is_priced.any():
+        scores.update(priced_scores(data, units.probabilities(train, config.batch_size), train))
+    return scores
+
+
+def priced_scores(
+    data: RoundData, probabilities: np.ndarray, index: np.ndarray
+) -> dict[str, float]:
+    """How a policy's deterministic choices fare on the priced steps among ``index``.
+
+    Args:
+        data: Labels with action values.
+        probabilities: (len(index), n_actions) the policy's action probabilities there.
+        index: Which labels.
+
+    Returns:
+        ``priced_states``; ``priced_rotation_best_share``: the share of them where holding
+        (action 0) is worse than the best action; ``priced_regret``: the mean regret of the
+        policy's most likely action (returns: a found branch is 1).
+    """
+    priced = np.isin(index, data.priced())
+    if not priced.any():
+        return {"priced_states": 0}
+    values = data.action_values[index[priced]]
+    best = values.max(axis=1)
+    chosen = values[np.arange(len(values)), probabilities[priced].argmax(axis=1)]
+    return {
+        "priced_states": int(priced.sum()),
+        "priced_rotation_best_share": float(np.mean(values[:, 0] < best)),
+        "priced_regret": float(np.mean(best - chosen)),
+    }
+
+
+def _probabilities_with_grad(policy: Any, data: RoundData, index: np.ndarray) -> Any:
+    """(len(index), n_actions) torch action probabilities of a feed-forward policy."""
+    observation, _ = policy.obs_to_tensor(
+        {key: value[index] for key, value in data.observations.items()}
+    )
+    return policy.get_distribution(observation).distribution.probs
 
 
 def student_probabilities(model: Any, data: RoundData) -> np.ndarray:
@@ -265,18 +334,20 @@ def weighted_nll(probabilities: np.ndarray, actions: np.ndarray, weights: np.nda
     return float(-(weights * np.log(chosen)).sum() / max(float(weights.sum()), 1e-12))
 
 
-def weighted_nll_step(model: Any, optimizer: Any, log_prob: Any, weights: Any) -> None:
-    """One optimiser step on the weighted cross-entropy of some labels (the fit's loss).
+def weighted_nll_loss(log_prob: Any, weights: Any) -> Any:
+    """The weighted cross-entropy of some labels, a torch scalar.
 
     Args:
-        model: The SB3 model whose policy is fitted (its ``max_grad_norm`` clips the gradient).
-        optimizer: The torch optimiser of the policy's parameters.
         log_prob: (B,) torch log-probabilities of the expert's actions.
         weights: (B,) torch label weights (:func:`label_weights`).
     """
+    return -(weights * log_prob).sum() / weights.sum()
+
+
+def optimiser_step(model: Any, optimizer: Any, loss: Any) -> None:
+    """One optimiser step on a loss of the policy (``max_grad_norm`` clips the gradient)."""
     import torch
 
-    loss = -(weights * log_prob).sum() / weights.sum()
     optimizer.zero_grad()
     loss.backward()
     torch.nn.utils.clip_grad_norm_(model.policy.parameters(), model.max_grad_norm)

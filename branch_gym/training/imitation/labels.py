@@ -2,7 +2,8 @@
 
 Episodes run in worker processes (:func:`init_worker` builds the run's env and its privileged
 expert once per process); :func:`label_episode` plays one tree and returns its labels and a
-summary for ``rounds.jsonl``.
+summary for ``rounds.jsonl``; :func:`branch_value` prices one action of a sampled state
+(:mod:`~branch_gym.training.imitation.cost_to_go`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from agents.privileged import PrivilegedAgent
 from branch_gym.evaluation.episodes import run_episode
 from branch_gym.threads import pin_worker_threads
 from branch_gym.training.config import TrainConfig
+from branch_gym.training.imitation.cost_to_go import BranchTask, HoldAgent, run_branch
 from branch_gym.training.imitation.data import RoundData
 
 _WORKER: dict[str, Any] = {}
@@ -28,7 +30,13 @@ def init_worker(train_config: dict[str, Any]) -> None:
     pin_worker_threads()
     config = TrainConfig.from_dict(train_config)
     env = gym.make(config.env_id, **config.env_kwargs())
-    _WORKER.update(env=env, expert=PrivilegedAgent.for_env(env), student=None, path=None)
+    _WORKER.update(
+        env=env,
+        expert=PrivilegedAgent.for_env(env),
+        hold=HoldAgent.for_env(env),
+        student=None,
+        path=None,
+    )
 
 
 def _student(path: str | None) -> Any:
@@ -55,6 +63,7 @@ class LabellingAgent:
         self.expert, self.student = expert, student
         self.observations: list[dict[str, np.ndarray]] = []
         self.labels: list[int] = []
+        self.actions: list[int] = []  # what was played (the replay of a cost-to-go branch)
         self.agreed = 0
 
     def predict(
@@ -75,6 +84,7 @@ class LabellingAgent:
         self.agreed += action == expert_action
         self.observations.append({key: np.array(value) for key, value in observation.items()})
         self.labels.append(expert_action)
+        self.actions.append(action)
         return action, state
 
     def round_data(self) -> RoundData:
@@ -89,7 +99,8 @@ def label_episode(tree_seed: int, student_path: str | None) -> tuple[RoundData, 
 
     Returns:
         The visited observations with the expert's action at each, and the episode's summary
-        (tree seed, steps, agreement with the expert, rotations, scan time, missed branches).
+        (tree seed, steps, agreement with the expert, rotations, scan time, missed branches, the
+        actions played).
     """
     agent = LabellingAgent(_WORKER["expert"], _student(student_path))
     result = run_episode(agent, _WORKER["env"], int(tree_seed)).result
@@ -103,6 +114,7 @@ def label_episode(tree_seed: int, student_path: str | None) -> tuple[RoundData, 
         "scan_time_s": float(result.scan_time_s),
         "n_gt": int(metrics.n_gt),
         "n_missed": int(metrics.n_missed),
+        "actions": agent.actions,
     }
     return agent.round_data(), summary
 
@@ -110,3 +122,18 @@ def label_episode(tree_seed: int, student_path: str | None) -> tuple[RoundData, 
 def episode_task(args: tuple[int, str | None]) -> tuple[RoundData, dict[str, Any]]:
     """:func:`label_episode` of a ``(tree seed, student path)`` task (for ``pool.map``)."""
     return label_episode(*args)
+
+
+def branch_value(task: BranchTask) -> float:
+    """The return of one cost-to-go branch in this worker (for ``pool.map``).
+
+    The roll-out is the task's student, else the expert where ``rollout_expert``, else
+    :class:`~branch_gym.training.imitation.cost_to_go.HoldAgent` (before the first student).
+    """
+    if task.rollout_path is not None:
+        rollout = _student(task.rollout_path)
+    elif task.rollout_expert:
+        rollout = _WORKER["expert"]
+    else:
+        rollout = _WORKER["hold"]
+    return run_branch(_WORKER["env"], task, rollout)

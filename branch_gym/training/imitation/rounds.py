@@ -2,8 +2,10 @@
 
 Every round is saved in the run folder (its labels ``round_K.npz``, the student after it
 ``model_round_K.zip``, a line of ``rounds.jsonl``), so an interrupted run resumes at the next
-round. Episodes run in ``workers`` processes on the run's training trees
-(:func:`branch_gym.training.seeds.train_seed_range`, after the first ``tree_offset`` of them).
+round; the cost-to-go branches of the round under way are kept as they finish
+(``round_K.branches.jsonl``) and not run again. Episodes and branches run in ``workers``
+processes on the run's training trees (:func:`branch_gym.training.seeds.train_seed_range`,
+after the first ``tree_offset`` of them).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from agents.ppo import load_model
+from branch_gym.env.layout import VECTOR_KEY, VectorField
 from branch_gym.threads import pin_worker_threads
 from branch_gym.training.imitation.config import (
     CONFIG_FILE,
@@ -29,6 +32,12 @@ from branch_gym.training.imitation.config import (
     ROUNDS_LOG,
     ImitationConfig,
 )
+from branch_gym.training.imitation.cost_to_go import (
+    BranchTask,
+    action_values,
+    distinct_actions,
+    sample_steps,
+)
 from branch_gym.training.imitation.data import RoundData, model_path, round_path
 from branch_gym.training.imitation.fit import (
     fit_student,
@@ -36,7 +45,7 @@ from branch_gym.training.imitation.fit import (
     rotation_auc,
     value_bounds_s,
 )
-from branch_gym.training.imitation.labels import episode_task, init_worker
+from branch_gym.training.imitation.labels import branch_value, episode_task, init_worker
 from recon.metrics import pooled_percent
 
 logger = logging.getLogger(__name__)
@@ -105,6 +114,11 @@ def imitate(
                     if bar is not None:
                         bar.update(1)
                 round_data = RoundData.concatenate(results)
+                if config.cost_to_go_states:
+                    round_data.action_values = _price_states(
+                        pool, config, round_index, results, summaries, student_path, spaces_env,
+                        out, progress,
+                    )  # fmt: skip
                 round_data.save(round_path(out, round_index))
                 rounds.append(round_data)
                 # The student that played this round, on labels it was not fitted on.
@@ -135,6 +149,74 @@ def imitate(
     final = out / FINAL_MODEL
     model.save(final)
     return final
+
+
+def _price_states(
+    pool: Any,
+    config: ImitationConfig,
+    round_index: int,
+    episodes: list[RoundData],
+    summaries: list[dict[str, Any]],
+    student_path: str | None,
+    env: Any,
+    out: Path,
+    progress: bool,
+) -> np.ndarray:
+    """(N, n_actions) cost-to-go values of the round's sampled states (NaN rows elsewhere).
+
+    The branches already in ``round_K.branches.jsonl`` (an interrupted round) are not run again.
+    """
+    theta_max = env.unwrapped.config.theta_max_deg
+    n_actions = int(env.action_space.n)
+    jobs: list[tuple[int, list[list[int]], list[BranchTask]]] = []  # (row, groups, tasks)
+    offset = 0
+    for data, summary in zip(episodes, summaries, strict=True):
+        seed = summary["tree_seed"]
+        rng = np.random.default_rng([config.train.seed, round_index, seed])
+        for step in sample_steps(len(summary["actions"]), config.cost_to_go_states, rng):
+            vector = data.observations[VECTOR_KEY][step]
+            groups = distinct_actions(env, float(vector[VectorField.ANGLE]) * theta_max)
+            tasks = [
+                BranchTask(
+                    seed,
+                    tuple(summary["actions"][:step]),
+                    vector,
+                    group[0],
+                    student_path if config.rollout == "student" else None,
+                    rollout_expert=config.rollout == "expert",
+                )
+                for group in groups
+            ]
+            jobs.append((offset + int(step), groups, tasks))
+        offset += len(data.expert_actions)
+    log = out / f"round_{round_index}.branches.jsonl"
+    done = {}
+    if log.exists():
+        for line in log.read_text().splitlines():
+            row = json.loads(line)
+            done[(row["tree_seed"], row["step"], row["action"])] = row["return"]
+    pending = [task for _, _, tasks in jobs for task in tasks if _branch_key(task) not in done]
+    bar = tqdm(total=len(pending), desc="cost-to-go branches") if progress else None
+    with open(log, "a") as handle:
+        for task, value in zip(pending, pool.map(branch_value, pending), strict=True):
+            done[_branch_key(task)] = value
+            tree_seed, step, action = _branch_key(task)
+            row = {"tree_seed": tree_seed, "step": step, "action": action, "return": value}
+            handle.write(json.dumps(row) + "\n")
+            handle.flush()
+            if bar is not None:
+                bar.update(1)
+    if bar is not None:
+        bar.close()
+    values = np.full((offset, n_actions), np.nan)
+    for row, groups, tasks in jobs:
+        returns = [done[_branch_key(task)] for task in tasks]
+        values[row] = action_values(groups, returns, n_actions)
+    return values
+
+
+def _branch_key(task: BranchTask) -> tuple[int, int, int]:
+    return int(task.tree_seed), len(task.prefix_actions), int(task.action)
 
 
 def _log_round(

@@ -1,0 +1,147 @@
+"""Cost-to-go labels (branch_gym/training/imitation/cost_to_go.py): branches, values, the fit."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import branch_gym  # noqa: F401  (registers the env ids)
+from agents.privileged import PrivilegedAgent
+from branch_gym.env.layout import VECTOR_KEY, VectorField
+from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
+from branch_gym.training.config import PPOConfig, TrainConfig
+from branch_gym.training.imitation import ImitationConfig, RoundData, fit_student, new_student
+from branch_gym.training.imitation.cost_to_go import (
+    BranchTask,
+    HoldAgent,
+    distinct_actions,
+    run_branch,
+)
+
+SCAN_TOP_M = 0.42
+FAST = TrainConfig(
+    env_id="BranchScanDiscrete-v2",
+    tracker="oracle",
+    render_tracking_frames=False,
+    end_height_m=SCAN_TOP_M,
+    ppo=PPOConfig(cnn_output_dim=16),
+)
+PRICE_S = 100.0  # a found branch is worth 100 s of scan time (the v0 reward's price)
+
+
+@pytest.fixture(scope="module")
+def env():
+    env = gym.make(FAST.env_id, **FAST.env_kwargs())
+    yield env
+    env.close()
+
+
+def test_actions_are_grouped_by_what_they_do(env):
+    # v2: 0 holds, 1..5 target -45, -22.5, 0, 22.5, 45 deg. At 0, "hold" and "to 0" are one.
+    assert distinct_actions(env, 0.0) == [[0, 3], [1], [2], [4], [5]]
+    # At 22.49 deg (the orbit ends within the tolerance), "hold" and "to 22.5" are one.
+    assert distinct_actions(env, 22.49) == [[0, 4], [1], [2], [3], [5]]
+
+
+def _tree_with_a_branch_behind_the_primary(env) -> TreeGT:
+    """Tree 0's primary with one side branch leaving it straight away from the camera."""
+    tree = env.unwrapped.session.world.reset(0)
+    primary = tree.primary
+    k = int(np.argmin(np.abs(primary.points[:, 2] - 0.34)))
+    steps = np.linspace(0.0, 0.08, 41)[:, None]
+    hidden = BranchGT(primary.points[k] + steps * np.array([0.0, 1.0, 0.0]), np.full(41, 0.004))
+    return TreeGT(primary, [hidden], [], tree.seed)
+
+
+def test_a_blind_rotation_is_priced_above_holding_when_a_branch_hides_behind(env):
+    options = {"tree": _tree_with_a_branch_behind_the_primary(env), "branch_value_s": PRICE_S}
+    observation, _ = env.reset(seed=0, options=options)
+    hold = HoldAgent.for_env(env)
+    returns = {}
+    for group in distinct_actions(env, 0.0):
+        task = BranchTask(0, (), observation[VECTOR_KEY], group[0], None, reset_options=options)
+        returns[group[0]] = run_branch(env, task, hold)
+    rotations = [returns[a] for a in (1, 2, 4, 5)]
+    # Holding never shows the branch; a rotation that shows it is worth about a branch (1.0)
+    # less its scan time (a second is 1 / 100 of a branch).
+    assert max(rotations) > returns[0] + 0.5
+    # Rolled out by the privileged expert, holding loses little: it rotates for the branch next.
+    expert = PrivilegedAgent.for_env(env)
+    task = BranchTask(0, (), observation[VECTOR_KEY], 0, None, True, reset_options=options)
+    assert run_branch(env, task, expert) > returns[0] + 0.5
+
+
+def test_a_replay_that_diverges_is_an_error(env):
+    observation, _ = env.reset(seed=3)
+    wrong = observation[VECTOR_KEY].copy()
+    wrong[VectorField.PROGRESS] += 0.5
+    with pytest.raises(RuntimeError, match="diverged"):
+        run_branch(env, BranchTask(3, (), wrong, 0, None), HoldAgent.for_env(env))
+
+
+def test_round_data_carries_action_values_and_rounds_without_them_concatenate(tmp_path):
+    vector = np.zeros((3, 12), np.float32)
+    values = np.array([[1.0, 0.5], [np.nan, np.nan], [0.0, 0.2]])
+    priced = RoundData({"vector": vector}, np.array([0, 1, 0]), values)
+    priced.save(tmp_path / "round_0.npz")
+    loaded = RoundData.load(tmp_path / "round_0.npz")
+    np.testing.assert_array_equal(loaded.action_values, values)
+    assert loaded.priced().tolist() == [0, 2]
+    plain = RoundData({"vector": vector[:2]}, np.array([0, 0]))
+    both = RoundData.concatenate([plain, loaded])
+    assert both.action_values.shape == (5, 2)
+    assert both.priced().tolist() == [2, 4]
+    assert RoundData.concatenate([plain, plain]).action_values is None
+
+
+def test_the_fit_follows_the_values_where_the_expert_labels_are_silent():
+    """Priced states whose best action is a rotation when one field is high: with the expert
+    labels weighed 0, the fitted policy picks the best-valued action."""
+    config = ImitationConfig(
+        train=FAST, epochs=30, batch_size=64, learning_rate=3e-3, expert_label_weight=0.0
+    )
+    model = new_student(config)
+    rng = np.random.default_rng(0)
+    space = model.observation_space
+    space.seed(0)
+    n = 300
+    observations = {key: np.stack([sub.sample() for _ in range(n)]) for key, sub in space.items()}
+    observations["image"][:] = 0
+    observations["coverage"][:] = 0
+    progress = rng.uniform(0, 1, n).astype(np.float32)
+    observations["vector"][:, VectorField.PROGRESS] = progress
+    n_actions = int(model.action_space.n)
+    values = np.zeros((n, n_actions))
+    best = np.where(progress > 0.5, 5, 0)  # rotate to 45 deg in the upper half, else hold
+    values[np.arange(n), best] = 1.0
+    data = RoundData(observations, np.zeros(n, np.int64), values)
+    fit = fit_student(model, data, config, rng)
+    assert fit["priced_states"] == n - round(config.validation_fraction * n)
+    assert fit["priced_regret"] <= 0.05
+    actions, _ = model.predict({k: v[:60] for k, v in observations.items()}, deterministic=True)
+    assert np.mean(actions == best[:60]) >= 0.95
+
+
+@pytest.mark.slow
+def test_a_cost_to_go_run_prices_sampled_states_and_keeps_its_branches(tmp_path):
+    import json
+
+    from branch_gym.training.imitation import ROUNDS_LOG, imitate
+
+    config = ImitationConfig(train=FAST, rounds=1, episodes=1, epochs=1, cost_to_go_states=1)
+    imitate(config, tmp_path, workers=1)
+    data = RoundData.load(tmp_path / "round_0.npz")
+    assert len(data.priced()) == 1  # one state of the episode, every action valued
+    branches = (tmp_path / "round_0.branches.jsonl").read_text()
+    assert len(branches.splitlines()) == 5  # five distinct actions at the state
+    row = json.loads((tmp_path / ROUNDS_LOG).read_text().splitlines()[0])
+    assert row["priced_states"] == 1 and 0.0 <= row["priced_rotation_best_share"] <= 1.0
+    # A round interrupted after its branches ran: resumed, it plays the episode again but
+    # takes the kept branches instead of running them again.
+    for name in ("model_round_0.zip", "round_0.npz", ROUNDS_LOG):
+        (tmp_path / name).unlink()
+    imitate(config, tmp_path, resume=True, workers=1)
+    assert (tmp_path / "round_0.branches.jsonl").read_text() == branches
+    again = RoundData.load(tmp_path / "round_0.npz")
+    np.testing.assert_array_equal(again.action_values, data.action_values)
