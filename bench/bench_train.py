@@ -35,7 +35,9 @@ ceiling for the ratio: two processes slow each other by ~15 % on some machines),
 ``train_steps_per_s_fast_lockstep`` is the same run with SB3's lockstep collection (a step that
 rotates costs ~8x one that does not, and every vector step waits for the slower env), and
 ``train_steps_per_s_fast_4envs`` the lockstep with 4 env processes on the same cores (more envs
-than cores fill the core that would idle).
+than cores fill the core that would idle). ``train_steps_per_s_fast_orchard_learned`` is the fast
+run in the orchard world from pixels (the learned segmenter: how the orchard students train);
+``train_fast_clean_over_orchard`` (bench/run.py) the clean rate over it (target <= 1.5).
 """
 
 from __future__ import annotations
@@ -72,13 +74,15 @@ FAST_ROLLOUTS = 4
 REPLAY_STEPS_PER_ENV = FAST_STEPS // N_ENVS * FAST_ROLLOUTS  # what each env plays in that run
 
 
-def _fast_config(n_envs: int = N_ENVS, worker_rollouts: bool = True) -> TrainConfig:
+def _fast_config(
+    n_envs: int = N_ENVS, worker_rollouts: bool = True, world: str = "clean", segmenter: str = "gt"
+) -> TrainConfig:
     """The run of the fast figures: ``FAST_ROLLOUTS`` rollouts of ``FAST_STEPS`` steps."""
     ppo = PPOConfig(n_steps=FAST_STEPS // n_envs)
     return TrainConfig(
         timesteps=ppo.n_steps * n_envs * FAST_ROLLOUTS, n_envs=n_envs, seed=SEED,
         tracker="oracle", eval_every=0, ppo=ppo, render_tracking_frames=False, normalize=False,
-        worker_rollouts=worker_rollouts,
+        worker_rollouts=worker_rollouts, world=world, segmenter=segmenter,
     )  # fmt: skip
 
 
@@ -142,18 +146,22 @@ def env_steps_per_s_side_by_side() -> float:
     return sum(REPLAY_STEPS_PER_ENV / s for s in seconds)
 
 
-def train_steps_per_s_fast(n_envs: int = N_ENVS, worker_rollouts: bool = True) -> float:
+def train_steps_per_s_fast(
+    n_envs: int = N_ENVS, worker_rollouts: bool = True, world: str = "clean", segmenter: str = "gt"
+) -> float:
     """Env steps per second of ``PPO.learn`` (training mode, fixed action mix, ``FAST_ROLLOUTS``).
 
     Args:
         n_envs: Env processes.
         worker_rollouts: Rollouts collected in the env processes (``TrainConfig``); False is
             SB3's lockstep.
+        world: "clean" or "orchard".
+        segmenter: The envs' segmenter ("learned": from pixels).
     """
     import torch
 
     threads = torch.get_num_threads()
-    config = _fast_config(n_envs, worker_rollouts)
+    config = _fast_config(n_envs, worker_rollouts, world, segmenter)
     steps = config.timesteps
     venv = make_train_env(config, wrapper=FixedActionMix)
     try:
@@ -205,6 +213,9 @@ def run() -> dict[str, float]:
         "train_steps_per_s_fast": fast,
         "train_steps_per_s_fast_lockstep": lockstep,
         "train_steps_per_s_fast_4envs": train_steps_per_s_fast(n_envs=4, worker_rollouts=False),
+        "train_steps_per_s_fast_orchard_learned": train_steps_per_s_fast(
+            world="orchard", segmenter="learned"
+        ),
         "train_steps_per_s": _train_steps_per_s("lk"),
         "train_steps_per_s_oracle": _train_steps_per_s("oracle"),
         "train_steps_per_s_trigger_recipe": _train_steps_per_s(

@@ -145,3 +145,28 @@ def test_a_cost_to_go_run_prices_sampled_states_and_keeps_its_branches(tmp_path)
     assert (tmp_path / "round_0.branches.jsonl").read_text() == branches
     again = RoundData.load(tmp_path / "round_0.npz")
     np.testing.assert_array_equal(again.action_values, data.action_values)
+
+
+@pytest.mark.slow
+def test_ray_labellers_label_as_this_process_does():
+    """The labelling calls as Ray tasks (a private local instance) return what they return here."""
+    pytest.importorskip("ray", reason="Ray is not installed: pip install '.[ray]'")
+    from branch_gym.evaluation.ray_backend import ray_session
+    from branch_gym.training.imitation.labels import (
+        RayLabellers,
+        branch_value,
+        episode_task,
+        init_worker,
+    )
+
+    init_worker(FAST.to_dict())
+    here, summary = episode_task((7, None))
+    task = BranchTask(7, tuple(summary["actions"][:3]), here.observations[VECTOR_KEY][3], 5, None)
+    with ray_session(None, 1) as ray:
+        labellers = RayLabellers(ray, FAST.to_dict())
+        [(there, _)] = labellers.map(episode_task, [(7, None)])
+        [value] = labellers.map(branch_value, [task])
+    np.testing.assert_array_equal(there.expert_actions, here.expert_actions)
+    for key, array in here.observations.items():
+        np.testing.assert_array_equal(there.observations[key], array)
+    assert value == branch_value(task)

@@ -32,7 +32,23 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--config", type=Path, help="a recipe file (configs/dagger_*.json)")
     parser.add_argument("--out", type=Path, required=True, help="run folder")
-    parser.add_argument("--workers", type=int, default=2, help="labelling processes (default 2)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=2,
+        help="labelling processes, or CPUs of a private local Ray instance (default 2)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("pool", "ray"),
+        default="pool",
+        help="pool: a process pool here (default); ray: Ray tasks (pip install .[ray])",
+    )
+    parser.add_argument(
+        "--address",
+        metavar="ADDR",
+        help="Ray cluster address (auto | HOST:PORT | ray://HOST:10001); with --backend ray",
+    )
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--env", choices=ENV_IDS, help="a discrete env id")
     parser.add_argument("--tracker", choices=("lk", "oracle"))
@@ -145,8 +161,10 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         config = config_from_args(args)
-        final = imitate(config, args.out, args.resume, args.workers, progress=True)
-    except (FileExistsError, FileNotFoundError, ValueError) as exc:
+        final = imitate(
+            config, args.out, args.resume, args.workers, True, args.backend, args.address
+        )
+    except (FileExistsError, FileNotFoundError, ValueError, ImportError) as exc:
         logging.getLogger(__name__).error("%s", exc)
         return EXIT_USAGE
     print(f"wrote {final}")

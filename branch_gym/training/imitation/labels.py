@@ -137,3 +137,36 @@ def branch_value(task: BranchTask) -> float:
     else:
         rollout = _WORKER["hold"]
     return run_branch(_WORKER["env"], task, rollout)
+
+
+class RayLabellers:
+    """``pool.map`` over Ray tasks: each Ray worker process sets up the run's env once.
+
+    The labelling functions (:func:`episode_task`, :func:`branch_value`) run as Ray tasks of one
+    CPU each, in order of submission, results in order. Student models are read from the run
+    folder by path: on a multi-node cluster the run folder must be on a filesystem every node
+    mounts at the same path.
+
+    Args:
+        ray: The initialised ``ray`` module (:func:`branch_gym.evaluation.ray_backend.ray_session`).
+        train_config: The run's ``TrainConfig.to_dict()``.
+    """
+
+    def __init__(self, ray: Any, train_config: dict[str, Any]) -> None:
+        self._ray = ray
+        self._train_config = train_config
+        self._remote = ray.remote(num_cpus=1)(_call_in_worker)
+
+    def map(self, function: Any, items: Any) -> Any:
+        """Yield ``function(item)`` for each item, in order, each run as a Ray task."""
+        refs = [self._remote.remote(function, self._train_config, item) for item in items]
+        for ref in refs:
+            yield self._ray.get(ref)
+
+
+def _call_in_worker(function: Any, train_config: dict[str, Any], item: Any) -> Any:
+    """One labelling call in a Ray worker process, its env built on the first call."""
+    if _WORKER.get("config") != train_config:
+        init_worker(train_config)
+        _WORKER["config"] = train_config
+    return function(item)

@@ -11,10 +11,12 @@ after the first ``tree_offset`` of them).
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
 import json
 import logging
 import math
 import multiprocessing
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -24,6 +26,7 @@ from tqdm import tqdm
 
 from agents.ppo import load_model
 from branch_gym.env.layout import VECTOR_KEY, VectorField
+from branch_gym.evaluation.ray_backend import ray_session
 from branch_gym.threads import pin_worker_threads
 from branch_gym.training.imitation.config import (
     CONFIG_FILE,
@@ -45,7 +48,12 @@ from branch_gym.training.imitation.fit import (
     rotation_auc,
     value_bounds_s,
 )
-from branch_gym.training.imitation.labels import branch_value, episode_task, init_worker
+from branch_gym.training.imitation.labels import (
+    RayLabellers,
+    branch_value,
+    episode_task,
+    init_worker,
+)
 from recon.metrics import pooled_percent
 
 logger = logging.getLogger(__name__)
@@ -60,8 +68,20 @@ def imitate(
     resume: bool = False,
     workers: int = 2,
     progress: bool = False,
+    backend: str = "pool",
+    address: str | None = None,
 ) -> Path:
     """Run (or resume) DAgger; returns ``OUT/model.zip``, the student after the last round.
+
+    Args:
+        config: The run.
+        out: The run folder.
+        resume: Continue the run in ``out``.
+        workers: Labelling processes (pool), or CPUs of a private local Ray instance.
+        progress: Show progress bars.
+        backend: "pool" (a process pool here) or "ray" (Ray tasks: a local instance, or the
+            cluster at ``address``); the labels are the same either way.
+        address: A Ray cluster address ("auto", "HOST:PORT", "ray://HOST:10001"); with "ray".
 
     Raises:
         FileExistsError: a new run in a folder that already holds one.
@@ -93,14 +113,8 @@ def imitate(
     bar = None
     if progress:
         bar = tqdm(total=config.rounds * config.episodes, initial=done * config.episodes)
-    context = concurrent.futures.ProcessPoolExecutor(
-        max_workers=workers,
-        initializer=init_worker,
-        initargs=(config.train.to_dict(),),
-        mp_context=_spawn_context(),
-    )
     try:
-        with context as pool:
+        with _labellers(config, workers, backend, address) as pool:
             for round_index in range(done, config.rounds):
                 student_path = None if round_index == 0 else str(model_path(out, round_index - 1))
                 tasks = [
@@ -245,6 +259,29 @@ def _log_round(
     logger.info("round %d: %s", round_index, row)
     with open(out / ROUNDS_LOG, "a") as handle:
         handle.write(json.dumps(row) + "\n")
+
+
+@contextlib.contextmanager
+def _labellers(
+    config: ImitationConfig, workers: int, backend: str, address: str | None
+) -> Iterator[Any]:
+    """Something with ``map(function, items)`` that runs the labelling calls in parallel."""
+    train = config.train.to_dict()
+    if backend == "ray":
+        with ray_session(address, workers) as ray:
+            yield RayLabellers(ray, train)
+        return
+    if backend != "pool":
+        raise ValueError(f"backend must be 'pool' or 'ray', got {backend!r}")
+    if address is not None:
+        raise ValueError("a Ray address needs the ray backend")
+    with concurrent.futures.ProcessPoolExecutor(
+        max_workers=workers,
+        initializer=init_worker,
+        initargs=(train,),
+        mp_context=_spawn_context(),
+    ) as pool:
+        yield pool
 
 
 def _spawn_context() -> Any:
