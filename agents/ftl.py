@@ -4,12 +4,13 @@
 differs from the paper's description, which :class:`agents.baselines.PeriodicAgent` follows, in
 two ways:
 
-- **Stage distance.** Counted from the first 3D model (``pan_reference``), a rotation stage
-  starts every ``vertical FoV at z_target / (2 x pan_frequency)`` of vertical travel
-  (``mode_switch_dist``), where the periodic agent waits ``FoV / frequency``. The authors' experiment script ran ``pan_frequency`` 1 and 2 for the table
-  columns the paper labels 1.5 and 2.5 (``shared/spec/reference.md``), so ``ftl:22.5:1`` is the
-  controller behind the paper's 22.5 deg / 1.5 column: a stage every 0.5 FoV, against 0.67 FoV
-  for ``periodic:22.5:1.5`` (``docs/results/paper_table.md``, "The authors' controller").
+- **Stage distance.** Counted from the first 3D model (``pan_reference``), a rotation stage starts
+  every ``vertical FoV at z_target / (2 x pan_frequency)`` of vertical travel
+  (``mode_switch_dist``), where the periodic agent waits ``FoV / frequency``. The authors'
+  experiment script ran ``pan_frequency`` 1 and 2 for the table columns the paper labels 1.5 and
+  2.5 (``shared/spec/reference.md``), so ``ftl:22.5:1`` is the controller behind the paper's 22.5
+  deg / 1.5 column: a stage every 0.5 FoV, against 0.67 FoV for ``periodic:22.5:1.5``
+  (``docs/results/paper_table.md``, "The authors' controller").
 - **Branch-aware targets.** The stages cycle through the intervals ``[0, +theta]``,
   ``[-theta/2, +theta/2]``, ``[-theta, 0]``, ``[-theta/2, +theta/2]`` (default targets +theta, 0,
   -theta, 0). Side branches of the current 3D model with an end in the image whose orbit angle
