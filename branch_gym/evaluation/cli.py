@@ -38,7 +38,11 @@ from agents.ppo import shipped_models
 from branch_gym.env.config import TREE_PRESETS, tree_config
 from branch_gym.evaluation.config import EvalConfig, TrialError
 from branch_gym.evaluation.pipeline import run_evaluation
-from branch_gym.evaluation.ray_backend import RayUnavailableError, import_ray
+from branch_gym.evaluation.ray_backend import (
+    RayUnavailableError,
+    add_backend_arguments,
+    import_ray,
+)
 from branch_gym.evaluation.report import failure_reasons, format_comparison
 from branch_gym.evaluation.runner import ConfigMismatchError
 from branch_gym.scan import ScanConfig
@@ -68,23 +72,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--trees", type=int, default=60, help="trees per policy (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="first tree seed (default 0)")
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=1,
-        help="trials run at once: worker processes, or Ray tasks in flight (default 1)",
-    )
-    parser.add_argument(
-        "--backend",
-        choices=("pool", "ray"),
-        default="pool",
-        help="pool: this process or a process pool (default); ray: Ray tasks (pip install .[ray])",
-    )
-    parser.add_argument(
-        "--address",
-        metavar="ADDR",
-        help="Ray cluster address (auto | HOST:PORT | ray://HOST:10001); with --backend ray; "
-        "default: a private local Ray instance",
+    add_backend_arguments(
+        parser, 1, "trials run at once: worker processes, or Ray tasks in flight"
     )
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument(

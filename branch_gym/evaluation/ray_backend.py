@@ -15,6 +15,7 @@ container image): tasks refer to the trial function by its module.
 
 from __future__ import annotations
 
+import argparse
 import logging
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -35,6 +36,32 @@ INSTALL_HINT = "pip install '.[ray]'"
 LOCAL_ADDRESS = "local"
 # CPUs a trial reserves: a trial is single-threaded (one BLAS thread, like the pool's workers).
 CPUS_PER_TRIAL = 1.0
+BACKENDS = ("pool", "ray")
+
+
+def add_backend_arguments(
+    parser: argparse.ArgumentParser, workers_default: int, workers_help: str
+) -> None:
+    """``--workers``, ``--backend {pool,ray}`` and ``--address`` of a command that runs its work
+    on a process pool or on Ray (``eval.py``, the imitation runs)."""
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=workers_default,
+        help=f"{workers_help} (default {workers_default})",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="pool",
+        help="pool: this process or a process pool (default); ray: Ray tasks (pip install .[ray])",
+    )
+    parser.add_argument(
+        "--address",
+        metavar="ADDR",
+        help="Ray cluster address (auto | HOST:PORT | ray://HOST:10001); with --backend ray; "
+        "default: a private local Ray instance",
+    )
 
 
 class RayUnavailableError(ImportError):

@@ -16,6 +16,7 @@ from pathlib import Path
 from branch_gym.config_utils import load_config
 from branch_gym.env.config import TREE_PRESETS
 from branch_gym.env.versions import ENV_IDS
+from branch_gym.evaluation.ray_backend import add_backend_arguments
 from branch_gym.sim.world import WORLDS
 from branch_gym.training.imitation.config import ImitationConfig
 from branch_gym.training.imitation.cost_to_go import ROLLOUTS
@@ -32,22 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--config", type=Path, help="a recipe file (configs/dagger_*.json)")
     parser.add_argument("--out", type=Path, required=True, help="run folder")
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=2,
-        help="labelling processes, or CPUs of a private local Ray instance (default 2)",
-    )
-    parser.add_argument(
-        "--backend",
-        choices=("pool", "ray"),
-        default="pool",
-        help="pool: a process pool here (default); ray: Ray tasks (pip install .[ray])",
-    )
-    parser.add_argument(
-        "--address",
-        metavar="ADDR",
-        help="Ray cluster address (auto | HOST:PORT | ray://HOST:10001); with --backend ray",
+    add_backend_arguments(
+        parser, 2, "labelling processes, or CPUs of a private local Ray instance"
     )
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--env", choices=ENV_IDS, help="a discrete env id")

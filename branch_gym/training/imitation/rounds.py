@@ -26,7 +26,7 @@ from tqdm import tqdm
 
 from agents.ppo import load_model
 from branch_gym.env.layout import VECTOR_KEY, VectorField
-from branch_gym.evaluation.ray_backend import ray_session
+from branch_gym.evaluation.ray_backend import BACKENDS, ray_session
 from branch_gym.threads import pin_worker_threads
 from branch_gym.training.imitation.config import (
     CONFIG_FILE,
@@ -271,8 +271,8 @@ def _labellers(
         with ray_session(address, workers) as ray:
             yield RayLabellers(ray, train)
         return
-    if backend != "pool":
-        raise ValueError(f"backend must be 'pool' or 'ray', got {backend!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     if address is not None:
         raise ValueError("a Ray address needs the ray backend")
     with concurrent.futures.ProcessPoolExecutor(
