@@ -72,9 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--trees", type=int, default=60, help="trees per policy (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="first tree seed (default 0)")
-    add_backend_arguments(
-        parser, 1, "trials run at once: worker processes, or Ray tasks in flight"
-    )
+    add_backend_arguments(parser, 1, "trials run at once: worker processes, or Ray tasks in flight")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument(
         "--world",

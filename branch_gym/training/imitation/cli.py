@@ -33,9 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--config", type=Path, help="a recipe file (configs/dagger_*.json)")
     parser.add_argument("--out", type=Path, required=True, help="run folder")
-    add_backend_arguments(
-        parser, 2, "labelling processes, or CPUs of a private local Ray instance"
-    )
+    add_backend_arguments(parser, 2, "labelling processes, or CPUs of a private local Ray instance")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--env", choices=ENV_IDS, help="a discrete env id")
     parser.add_argument("--tracker", choices=("lk", "oracle"))
