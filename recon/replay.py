@@ -58,6 +58,8 @@ from recon.model import TreeModel
 from recon.modeler import IterationReport, Modeler
 from recon.overlay import model_overlay
 from recon.plot3d import plot_model_3d
+from recon.segmentation.flow import FramePairer
+from recon.segmentation.flow import swap_red_blue as swap_flow_red_blue
 from recon.tracking import LucasKanadeTracker, PointTracker
 
 if TYPE_CHECKING:  # recon.segmentation (torch) is imported only for a learned segmenter
@@ -445,8 +447,6 @@ class _FlowInputs:
         """The flow inputs of segmenter ``seg`` (None: recorded masks)."""
         if seg is None or not getattr(seg, "uses_flow_picture", False):
             return cls()
-        from recon.segmentation.flow import FramePairer  # torch only for a learned segmenter
-
         return cls(FramePairer(pairing), swap_red_blue)
 
     def segment(self, seg, loaded: LoadedFrame) -> np.ndarray:
@@ -464,9 +464,9 @@ class _FlowInputs:
             return np.asarray(seg.segment(loaded.rgb, previous_rgb=previous))
         partner = self.pairer.add(loaded.rgb, loaded.T_world_camera)
         if loaded.flow_image is not None:
-            from recon.segmentation.flow import swap_red_blue
-
-            picture = swap_red_blue(loaded.flow_image) if self.swap_red_blue else loaded.flow_image
+            picture = (
+                swap_flow_red_blue(loaded.flow_image) if self.swap_red_blue else loaded.flow_image
+            )
             self.counts["recorded"] += 1
             return np.asarray(seg.segment(loaded.rgb, flow_image=picture))
         self.counts["none" if partner is None else "paired"] += 1

@@ -2,34 +2,36 @@
 
 No pybullet or branch_gym import: the segmenter runs on real camera frames. Training data and
 the training loop live in ``branch_gym.segmenter_training`` (they need the simulator).
+
+The names below load their module on first use (PEP 562), so that ``recon.segmentation.flow``
+(OpenCV and numpy only) is importable without torch.
 """
 
-from recon.segmentation.inputs import FlowConfig, dis_flow, make_input, normalise_flow
-from recon.segmentation.metrics import mask_iou, pooled_iou
-from recon.segmentation.network import SegmenterNet, SegmenterNetConfig, count_parameters
-from recon.segmentation.segmenter import (
-    LearnedSegmenter,
-    default_weights_path,
-    fuse_batch_norm,
-    load_segmenter,
-)
-from recon.segmentation.weights import SegmenterWeightsError, load_weights, save_weights
+import importlib
 
-__all__ = [
-    "FlowConfig",
-    "LearnedSegmenter",
-    "SegmenterNet",
-    "SegmenterNetConfig",
-    "SegmenterWeightsError",
-    "count_parameters",
-    "default_weights_path",
-    "dis_flow",
-    "fuse_batch_norm",
-    "load_segmenter",
-    "load_weights",
-    "make_input",
-    "mask_iou",
-    "normalise_flow",
-    "pooled_iou",
-    "save_weights",
-]
+# Public name -> the submodule that defines it.
+_EXPORTS = {
+    "FlowConfig": "inputs",
+    "dis_flow": "inputs",
+    "make_input": "inputs",
+    "normalise_flow": "inputs",
+    "mask_iou": "metrics",
+    "pooled_iou": "metrics",
+    "SegmenterNet": "network",
+    "SegmenterNetConfig": "network",
+    "count_parameters": "network",
+    "LearnedSegmenter": "segmenter",
+    "default_weights_path": "segmenter",
+    "fuse_batch_norm": "segmenter",
+    "load_segmenter": "segmenter",
+    "SegmenterWeightsError": "weights",
+    "load_weights": "weights",
+    "save_weights": "weights",
+}
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> object:
+    if name not in _EXPORTS:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
