@@ -24,7 +24,7 @@ from branch_gym.control import (
     OrbitMove,
     PrimaryBranchController,
 )
-from branch_gym.sensing import TRACKERS, Sensor, check_segmenter_spec, make_tracker
+from branch_gym.sensing import LEARNED_KIND, TRACKERS, Sensor, check_segmenter_spec, make_tracker
 from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.validation import require_positive
 from branch_gym.sim.world import World, WorldConfig
@@ -70,7 +70,8 @@ class ScanConfig:
             renders only the frames a modeling iteration runs on and feeds pose-only frames in
             between: ~8x fewer renders, valid with the oracle tracker only (fast training).
         controller: Follow controller gains (speed is taken from ``speed_mps``).
-        modeler: Reconstruction thresholds.
+        modeler: Reconstruction thresholds (:meth:`modeler_config` resolves the ones left to
+            the mask source).
         world: The simulated world; a name ("clean", the default, or "orchard": sky, row,
             trellis, camera model; :meth:`WorldConfig.preset`) stands for that preset with
             the paper's tree.
@@ -124,6 +125,11 @@ class ScanConfig:
             raise ValueError(
                 f"ScanConfig.frame_pairing must be a FramePairingConfig, got {self.frame_pairing!r}"
             )
+
+    def modeler_config(self) -> ModelerConfig:
+        """``modeler`` with the settings left to the mask source resolved for ``segmenter``."""
+        learned = self.segmenter.split(":", 1)[0] == LEARNED_KIND
+        return self.modeler.for_masks(learned=learned)
 
     def replace(self, **changes: object) -> ScanConfig:
         """A copy with some fields changed."""
@@ -180,7 +186,7 @@ class ScanSession:
         self.world = World(self.config.world)
         self.sensor = Sensor(self.world, self.config.segmenter, self.config.frame_pairing)
         self.intrinsics = self.sensor.intrinsics
-        self.modeler = Modeler(make_tracker(self.config.tracker), self.config.modeler)
+        self.modeler = Modeler(make_tracker(self.config.tracker), self.config.modeler_config())
         controller_config = replace(self.config.controller, speed_mps=self.config.speed_mps)
         self.controller = PrimaryBranchController(controller_config, self.intrinsics)
         self.vertical_fov_m = self.intrinsics.vertical_fov_length_m(controller_config.z_target_m)

@@ -191,6 +191,13 @@ def modeler_settings(
     return seed, config
 
 
+def _learned_masks(source: ScanSource) -> bool:
+    """The recorded masks come from a learned segmenter (a branch_gym recording says so)."""
+    scan = source.metadata.get("scan", {}) if isinstance(source.metadata, dict) else {}
+    segmenter = scan.get("segmenter") if isinstance(scan, dict) else None
+    return isinstance(segmenter, str) and segmenter.split(":", 1)[0] == "learned"
+
+
 def load_truth(path: str | Path) -> TreeModel:
     """Ground truth JSON (branch_gym's TreeGT: ``primary`` and ``secondaries`` with points/radii).
 
@@ -296,7 +303,10 @@ def replay(
             ``uses_flow_picture`` is true also takes ``flow_image=`` (module docstring).
         tracker: Point tracker name (``TRACKERS``).
         seed: Modeler seed; default: the recording's (``metadata.json``), else 0.
-        modeler_config: Modeler thresholds; default: the recording's, else the defaults.
+        modeler_config: Modeler thresholds; default: the recording's, else the defaults. Those
+            left to the mask source (``ModelerConfig.for_masks``) are resolved as for a learned
+            segmenter's masks when ``segmenter`` is one or the recording's masks came from one
+            (its ``metadata.json`` says ``learned``), else as for exact masks.
         config: Output settings.
         overwrite: Replace an existing ``out_dir``.
         progress: Show a tqdm progress bar.
@@ -329,6 +339,7 @@ def replay(
     if truth is not None and not isinstance(truth, TreeModel):
         truth = load_truth(truth)
     seed, modeler_config = modeler_settings(source.metadata, seed, modeler_config)
+    modeler_config = modeler_config.for_masks(learned=seg is not None or _learned_masks(source))
     recorded_tracker = source.metadata.get("modeler", {}).get("tracker", tracker)
     if recorded_tracker != tracker:
         logger.warning(

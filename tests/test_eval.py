@@ -42,6 +42,7 @@ from branch_gym.evaluation.trials import (
 )
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
+from recon.config import ModelerConfig
 from recon.io.folder import ScanFolder
 from recon.metrics import TreeMetrics, aggregate
 from recon.model import BranchModel, TreeModel
@@ -479,8 +480,10 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     from dataclasses import replace
 
     config = ScanConfig()
-    before = config_to_dict(config)  # the config as published before the two fields existed
+    config = config.replace(modeler=config.modeler_config())  # hashed as run (EvalConfig)
+    before = config_to_dict(config)  # the config as published before the fields existed
     del before["render_tracking_frames"], before["modeler"]["secondary_trust_redetected"]
+    del before["modeler"]["secondary_trust_tolerance_px"]
     del before["frame_pairing"]
     del before["world"]["orchard"], before["world"]["tree"]["architecture"]
     del before["world"]["tree"]["primary_base_height_m"]
@@ -488,3 +491,19 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     assert config_hash(config) == published
     redetected = replace(config, modeler=replace(config.modeler, secondary_trust_redetected=True))
     assert config_hash(redetected) != published
+
+
+def test_trials_of_learned_masks_before_the_trust_tolerance_are_not_mixed_with_new_ones() -> None:
+    """The tolerance left to the mask source hashes as resolved: unchanged for the renderer's
+    labels, changed for a learned segmenter (its saved trials ran 0 px, now 4 px)."""
+    from dataclasses import replace
+
+    def scan_hash(scan: ScanConfig) -> str:
+        return EvalConfig(("none",), 1, 0, 1, scan).scan_hash
+
+    exact = ModelerConfig(secondary_trust_tolerance_px=0.0)
+    labels = ScanConfig()
+    assert scan_hash(labels) == scan_hash(replace(labels, modeler=exact))
+    learned = ScanConfig(segmenter="learned")
+    assert learned.modeler_config().secondary_trust_tolerance_px == 4.0
+    assert scan_hash(learned) != scan_hash(replace(learned, modeler=exact))

@@ -168,6 +168,32 @@ def test_learned_segmenter_hook(recording, tmp_path, monkeypatch):
     assert replayed.model.to_dict() == result.model.to_dict()
 
 
+def test_the_trust_tolerance_follows_the_mask_source(recording, tmp_path, monkeypatch):
+    """Exact recorded masks replay at 0 px; a learned segmenter's masks (now, or when the scan
+    was recorded) at ModelerConfig.consistency_tolerance_px (recon.config)."""
+    scan, _ = recording
+
+    def tolerance(source, name, **kwargs) -> float:
+        replay(source, tmp_path / name, progress=False, **kwargs)
+        summary = json.loads((tmp_path / name / "summary.json").read_text())
+        return summary["modeler_config"]["secondary_trust_tolerance_px"]
+
+    assert tolerance(scan, "exact") == 0.0
+    learned = tmp_path / "learned_masks"
+    shutil.copytree(scan, learned)
+    meta = json.loads((learned / "metadata.json").read_text())
+    meta["scan"]["segmenter"] = "learned"
+    (learned / "metadata.json").write_text(json.dumps(meta))
+    assert tolerance(learned, "recorded_learned") == 4.0
+    masks = [f.mask for f in ScanFolder(scan).frames()]
+
+    class Replayer:  # a learned segmenter that returns the recorded masks
+        def segment(self, rgb, previous_rgb=None):
+            return masks[0]
+
+    assert tolerance(scan, "now_learned", segmenter=Replayer()) == 4.0
+
+
 def test_learned_segmenter_missing_is_a_clear_error(monkeypatch):
     monkeypatch.setitem(sys.modules, "recon.segmentation", None)
     with pytest.raises(ReplayError, match=r"learned RGB segmenter \(recon.segmentation\)"):

@@ -7,6 +7,9 @@ view (a well reconstructed branch swept past the image border during a rotation 
 toward the trunk by a later view folded, seed 16). With ``secondary_trust_redetected`` (off by
 default) a frame whose detection joins a branch counts as supporting it (a branch 15 mm off after
 rotations lost its trust while each view still detected it, validation tree 10,000,035).
+``secondary_trust_tolerance_px`` (4 px for a learned segmenter's masks): a model a few pixels
+beside a thin learned mask keeps its trust (issue 32: rotated views from pixels deleted found
+branches).
 """
 
 from __future__ import annotations
@@ -87,6 +90,48 @@ def test_a_branch_redetected_in_the_frame_keeps_its_trust_where_its_model_misses
     redetected = ModelerConfig(secondary_trust_redetected=True)
     assert _trust_changes_redetected_then_not(redetected) == [1, -1]
     assert _trust_changes_redetected_then_not(ModelerConfig()) == [-1, -1]  # authors' rule
+
+
+def _trust_change_beside_a_thin_mask(offset_px: float, config: ModelerConfig) -> int:
+    """Trust change of the branch's model in a frame whose mask draws the branch 1 mm thin and
+    ``offset_px`` to the side of the model (a learned mask of a thin branch, a rotated view)."""
+    pose = camera_following(PRIMARY, 0.50)
+    middle = BRANCH.points[len(BRANCH.points) // 2]
+    step_m = 1e-3
+    moved = middle + np.array([step_m, 0.0, 0.0])
+    (a, b), _ = project_points(np.array([middle, moved]), pose, INTRINSICS)
+    shift = np.array([offset_px * step_m / np.linalg.norm(b - a), 0.0, 0.0])
+    thin = straight_tube(BRANCH.points[0] + shift, BRANCH.points[-1] + shift, 0.001)
+    branches = SecondaryBranches(config, np.random.default_rng(0))
+    primary = BranchModel(PRIMARY.points[::10], PRIMARY.radii[::10])
+    detection = SecondaryDetection(BRANCH.points[5::10], np.full(len(BRANCH.points[5::10]), 0.004))
+    assert branches.add_detections([detection], primary) == 1
+    (branch,) = branches._branches
+    before = branch.trust
+    branches.update_trust(_frame(0.50, [PRIMARY, thin]))
+    return branch.trust - before
+
+
+def test_the_trust_tolerance_keeps_a_branch_a_few_pixels_beside_a_learned_mask() -> None:
+    exact = ModelerConfig().for_masks(learned=False)
+    learned = ModelerConfig().for_masks(learned=True)
+    assert exact.secondary_trust_tolerance_px == 0.0
+    assert learned.secondary_trust_tolerance_px == ModelerConfig().consistency_tolerance_px
+    assert _trust_change_beside_a_thin_mask(0.0, exact) == 1  # on the mask: supported
+    assert _trust_change_beside_a_thin_mask(3.0, exact) == -1  # 3 px off: the authors' rule
+    assert _trust_change_beside_a_thin_mask(3.0, learned) == 1
+    assert _trust_change_beside_a_thin_mask(8.0, learned) == -1  # farther than 4 px
+
+
+def test_a_set_trust_tolerance_is_kept_and_a_negative_one_refused() -> None:
+    set_one = ModelerConfig(secondary_trust_tolerance_px=2.0)
+    assert set_one.for_masks(learned=True) is set_one
+    assert ModelerConfig(secondary_trust_tolerance_px=0.0).for_masks(learned=True) == (
+        ModelerConfig(secondary_trust_tolerance_px=0.0)
+    )
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="secondary_trust_tolerance_px"):
+            ModelerConfig(secondary_trust_tolerance_px=bad)
 
 
 def test_the_in_view_share_must_be_a_fraction() -> None:

@@ -75,7 +75,8 @@ class EvalConfig:
 
     @property
     def scan_hash(self) -> str:
-        return config_hash(self.scan)
+        """Hash of the scan settings as run (those left to the mask source resolved)."""
+        return config_hash(self.scan.replace(modeler=self.scan.modeler_config()))
 
     def to_json_dict(self) -> dict:
         """What determines the results (the worker count and the backend do not)."""

@@ -168,6 +168,7 @@ HASH_NEUTRAL_DEFAULTS = {
         "max_history_frames": 128,
     },
     "modeler.secondary_trust_redetected": False,
+    "modeler.secondary_trust_tolerance_px": 0.0,  # hashed resolved (ScanConfig.modeler_config)
     "world.orchard": None,
     "world.tree.architecture": "paper",
     "world.tree.primary_base_height_m": 0.0,

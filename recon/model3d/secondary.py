@@ -8,6 +8,7 @@ lands on the mask, -1 when not; from the authors' code) deletes branches the mas
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -135,7 +136,9 @@ class SecondaryBranches:
             if branch.model is None:
                 continue
             observed = branch.model.points[branch.n_extension :]  # not the bridged junction
-            on_mask, visible = _mask_fraction(observed, frame, cfg.image_margin_px)
+            on_mask, visible = _mask_fraction(
+                observed, frame, cfg.image_margin_px, cfg.secondary_trust_tolerance_px or 0.0
+            )
             supported = on_mask >= 0.5 or (cfg.secondary_trust_redetected and branch.redetected)
             if visible >= max(2, cfg.secondary_trust_in_view * len(observed)):
                 branch.trust += 1 if supported else -1
@@ -328,16 +331,37 @@ class SecondaryBranches:
         return np.vstack([run, samples]), np.concatenate([np.full(n, radii[0]), radii]), n
 
 
-def _mask_fraction(points: np.ndarray, frame: Frame, margin_px: float) -> tuple[float, int]:
+def _mask_fraction(
+    points: np.ndarray, frame: Frame, margin_px: float, tolerance_px: float = 0.0
+) -> tuple[float, int]:
     """(share of ``points`` that project onto ``frame``'s mask, how many project into the image
-    at least ``margin_px`` from its border); the share is NaN when none do."""
+    at least ``margin_px`` from its border); the share is NaN when none do.
+
+    With ``tolerance_px`` > 0 a point counts as on the mask when a mask pixel lies within that
+    distance of its projection.
+    """
     pixels, depth = project_points(points, frame.T_world_camera, frame.intrinsics)
     visible = (depth > 0) & frame.intrinsics.in_image(pixels, margin_px)
     n = int(visible.sum())
     if n == 0:
         return float("nan"), 0
     px = np.rint(pixels[visible]).astype(int)
-    return float(frame.mask[px[:, 1], px[:, 0]].mean()), n
+    if tolerance_px <= 0.0:
+        return float(frame.mask[px[:, 1], px[:, 0]].mean()), n
+    dy, dx = _disk_offsets(tolerance_px)
+    height, width = frame.mask.shape
+    rows = np.clip(px[:, 1, None] + dy[None], 0, height - 1)
+    cols = np.clip(px[:, 0, None] + dx[None], 0, width - 1)
+    return float(frame.mask[rows, cols].any(axis=1).mean()), n
+
+
+@functools.lru_cache(maxsize=8)
+def _disk_offsets(radius_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(row, column) offsets of the pixels within ``radius_px`` of a pixel (itself included)."""
+    r = int(np.ceil(radius_px))
+    dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
+    inside = dy**2 + dx**2 <= radius_px**2
+    return dy[inside], dx[inside]
 
 
 def _direction(points: np.ndarray) -> np.ndarray:
