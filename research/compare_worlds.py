@@ -28,14 +28,15 @@ COLUMNS = (
 
 
 def comparison_table(folders: dict[str, Path]) -> str:
-    """Markdown table over the policies of the first folder, one row per (policy, world)."""
+    """Markdown table over every folder's policies (first seen first), a row per (policy, world)."""
     summaries = {
         name: json.loads((folder / "summary.json").read_text())["policies"]
         for name, folder in folders.items()
     }
     header = "| policy | world | " + " | ".join(name for name, _ in COLUMNS) + " |"
     lines = [header, "|" + "---|" * (len(COLUMNS) + 2)]
-    for policy in next(iter(summaries.values())):
+    policies_seen = dict.fromkeys(p for policies in summaries.values() for p in policies)
+    for policy in policies_seen:
         for world, policies in summaries.items():
             if policy in policies:
                 cells = " | ".join(cell(policies[policy]) for _, cell in COLUMNS)
