@@ -11,8 +11,17 @@ import numpy as np
 import pytest
 import torch
 
-from branch_gym.segmenter_training.config import AugmentConfig, GenerateConfig, TrainConfig
-from branch_gym.segmenter_training.evaluate import EvaluateConfig, evaluate_segmenter
+from branch_gym.segmenter_training.config import (
+    EVAL_SEED_OFFSET,
+    AugmentConfig,
+    GenerateConfig,
+    TrainConfig,
+)
+from branch_gym.segmenter_training.evaluate import (
+    EvaluateConfig,
+    evaluate_segmenter,
+    render_eval_frames,
+)
 from branch_gym.segmenter_training.generate import generate_shard, shard_path, write_shard
 from branch_gym.segmenter_training.train import PairBatches, segmentation_loss, train
 from recon.segmentation.inputs import FlowConfig
@@ -158,3 +167,18 @@ def test_shipped_weights_segment_unseen_trees() -> None:
     result = evaluate_segmenter(segmenter, "paper", config, progress=False)
     assert result["frames"] == 4
     assert result["iou"] >= 0.8
+
+
+@pytest.mark.skipif(not default_weights_path().is_file(), reason="no shipped weights")
+def test_evaluation_views_after_an_orbit_are_scored_too() -> None:
+    """``orbit_deg`` scores the views after a rotation stage: the camera has moved about the
+    primary (other pixels), and the side-branch recall is reported with the IoU."""
+    straight, orbited = (
+        next(render_eval_frames("paper", EVAL_SEED_OFFSET, EvaluateConfig(orbit_deg=angle)))
+        for angle in (0.0, 22.5)
+    )
+    assert np.mean(straight[1] != orbited[1]) > 0.2
+    config = EvaluateConfig(trees=1, frames_per_tree=2, orbit_deg=22.5)
+    result = evaluate_segmenter(load_segmenter("learned"), "paper", config, progress=False)
+    assert result["frames"] == 2 and result["iou"] >= 0.8
+    assert 0.0 <= result["side_branch_recall"] <= 1.0

@@ -130,7 +130,10 @@ def _evaluate(args: argparse.Namespace) -> None:
             variants[f"{name}/flow"] = (segmenter, True)
         variants[f"{name}/rgb_only"] = (segmenter, False)
     config = EvaluateConfig(
-        trees=args.trees, frames_per_tree=args.frames_per_tree, world=args.world
+        trees=args.trees,
+        frames_per_tree=args.frames_per_tree,
+        world=args.world,
+        orbit_deg=args.orbit_deg,
     )
     results = {}
     for preset in args.presets:
@@ -237,6 +240,9 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--presets", nargs="+", default=["paper", "cluttered", "hard"],
                     choices=EVAL_PRESETS)  # fmt: skip
     ev.add_argument("--world", default="clean", choices=("clean", "orchard"))
+    ev.add_argument(
+        "--orbit-deg", type=float, default=0.0, help="orbit about the primary first (degrees)"
+    )
     ev.add_argument("--out", default=None, help="write the results as JSON")
 
     ep = sub.add_parser(

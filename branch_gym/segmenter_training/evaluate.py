@@ -4,7 +4,8 @@ Evaluation trees are seeds ``EVAL_SEED_OFFSET + i`` (0, 1, ...; training seeds a
 tree preset in the clean or the orchard world, scanned as in ``eval.py``: the camera starts at
 the home pose (0.20 m from the primary, 0.275 m high) and climbs straight up; every
 ``frame_spacing_m`` a frame is segmented, with the frame ``previous_offset_m`` of climb before
-it as the previous frame (flow input; 10 mm, past the paper's 7.5 mm pairing threshold).
+it as the previous frame (flow input; 10 mm, past the paper's 7.5 mm pairing threshold). With
+``orbit_deg`` the camera first orbits the primary by that angle (the views after a rotation).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from tqdm import tqdm
 
 from branch_gym.segmenter_training.config import EVAL_SEED_OFFSET
 from branch_gym.segmenter_training.generate import branch_mask, preset_tree_config
+from branch_gym.segmenter_training.orchard_pairs import orbit_camera
+from branch_gym.sim.scene.labels import FIRST_SECONDARY_LABEL
 from branch_gym.sim.world import World, WorldConfig
 from recon.segmentation.metrics import mask_iou, pooled_iou
 from recon.segmentation.segmenter import LearnedSegmenter
@@ -37,6 +40,8 @@ class EvaluateConfig:
             10 mm iteration spacing, paper IV).
         speed_mps: Climb speed.
         world: ``"clean"`` or ``"orchard"`` (:meth:`WorldConfig.preset`).
+        orbit_deg: Orbit the camera by this angle about the primary before climbing (the views
+            after a rotation stage; 0: the home view, straight on).
     """
 
     trees: int = 20
@@ -45,6 +50,7 @@ class EvaluateConfig:
     previous_offset_m: float = 0.01
     speed_mps: float = 0.025
     world: str = "clean"
+    orbit_deg: float = 0.0
 
 
 def render_eval_frames(preset: str, seed: int, config: EvaluateConfig):
@@ -52,6 +58,11 @@ def render_eval_frames(preset: str, seed: int, config: EvaluateConfig):
     world = World(WorldConfig.preset(config.world, preset_tree_config(preset)))
     try:
         world.reset(seed)
+        distance_m = world.config.z_target_m
+        if config.orbit_deg and not orbit_camera(
+            world, config.orbit_deg, config.speed_mps, distance_m
+        ):
+            return
         up = np.array([0.0, -config.speed_mps, 0.0, 0.0, 0.0, 0.0])
         for _ in range(config.frames_per_tree):
             previous = world.render()
@@ -82,17 +93,20 @@ def evaluate_segmenters(
 
     Returns:
         name -> {``iou`` (pooled over all frames: total intersection / total union),
-        ``iou_frame_mean``, ``iou_frame_p10`` (10th percentile over frames), ``frames``,
-        ``segment_ms_mean``}.
+        ``iou_frame_mean``, ``iou_frame_p10`` (10th percentile over frames),
+        ``side_branch_recall`` (share of the side branches' pixels, spurs and buds included, in
+        the mask, pooled), ``frames``, ``segment_ms_mean``}.
     """
     config = config or EvaluateConfig()
     counts = {name: [0, 0] for name in variants}
+    side_counts = {name: [0, 0] for name in variants}  # side-branch pixels found, all
     per_frame: dict[str, list[float]] = {name: [] for name in variants}
     times: dict[str, list[float]] = {name: [] for name in variants}
     seeds = range(EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + config.trees)
     for seed in tqdm(seeds, desc=f"eval {preset}", unit="tree", disable=not progress):
         for previous, rgb, labels in render_eval_frames(preset, seed, config):
             truth = branch_mask(labels)
+            side = truth & (labels >= FIRST_SECONDARY_LABEL)
             for name, (segmenter, use_previous) in variants.items():
                 t0 = time.perf_counter()
                 mask = segmenter.segment(rgb, previous if use_previous else None)
@@ -100,11 +114,14 @@ def evaluate_segmenters(
                 counts[name][0] += int(np.count_nonzero(mask & truth))
                 counts[name][1] += int(np.count_nonzero(mask | truth))
                 per_frame[name].append(mask_iou(mask, truth))
+                side_counts[name][0] += int(np.count_nonzero(mask & side))
+                side_counts[name][1] += int(np.count_nonzero(side))
     return {
         name: {
             "iou": pooled_iou(*counts[name]),
             "iou_frame_mean": float(np.mean(per_frame[name])),
             "iou_frame_p10": float(np.percentile(per_frame[name], 10)),
+            "side_branch_recall": side_counts[name][0] / max(side_counts[name][1], 1),
             "frames": len(per_frame[name]),
             "segment_ms_mean": 1000 * float(np.mean(times[name])),
         }

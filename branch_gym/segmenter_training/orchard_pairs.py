@@ -166,6 +166,23 @@ def _move(world: World, twist: np.ndarray, duration_s: float) -> bool:
     return duration_s <= 0 or world.apply_camera_twist(twist, duration_s).ok
 
 
+def orbit_camera(world: World, angle_deg: float, speed_mps: float, distance_m: float) -> bool:
+    """Orbit the camera by ``angle_deg`` about the vertical axis ``distance_m`` ahead of it.
+
+    Args:
+        world: The world whose camera moves.
+        angle_deg: Orbit angle (positive: the camera moves to its right, camera +x).
+        speed_mps: Camera speed along the arc.
+        distance_m: Radius of the orbit (the camera's distance to the primary).
+
+    Returns:
+        Whether the arm completed the motion.
+    """
+    sign = math.copysign(1.0, angle_deg)
+    orbit = np.array([sign * speed_mps, 0, 0, 0, -sign * speed_mps / distance_m, 0])
+    return _move(world, orbit, abs(math.radians(angle_deg)) * distance_m / speed_mps)
+
+
 def _pair_twist(config: OrchardPairsConfig, rng: np.random.Generator) -> tuple[np.ndarray, float]:
     """A camera-frame twist and its duration: up (camera -y) with sideways/forward parts."""
     lateral = rng.uniform(-config.lateral_fraction, config.lateral_fraction, 2)
@@ -212,10 +229,7 @@ def render_orchard_pairs(
         world.reset(tree_seed)
         z = world_config.z_target_m
         speed = config.speed_mps
-        angle = math.radians(_uniform(rng, config.orbit_range_deg))
-        sign = math.copysign(1.0, angle)
-        orbit = np.array([sign * speed, 0, 0, 0, -sign * speed / z, 0])
-        ok = _move(world, orbit, abs(angle) * z / speed)
+        ok = orbit_camera(world, _uniform(rng, config.orbit_range_deg), speed, z)
         roll = math.radians(_uniform(rng, config.roll_range_deg))
         if ok and roll:
             ok = _move(world, np.array([0, 0, 0, 0, 0, math.copysign(0.5, roll)]), abs(roll) / 0.5)
