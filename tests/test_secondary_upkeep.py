@@ -43,16 +43,16 @@ def _in_view(camera_height_m: float) -> float:
     return float(INTRINSICS.in_image(pixels, MARGIN_PX).mean())
 
 
-def _trust_after(camera_height_m: float, config: ModelerConfig) -> int:
-    """Trust of the branch after one frame whose mask holds the primary only (the branch's
-    projection lands off the mask wherever it is in view)."""
+def _trust_after(camera_height_m: float, config: ModelerConfig, mask_tubes=(PRIMARY,)) -> int:
+    """Trust change of the branch in one frame whose mask draws ``mask_tubes`` (by default the
+    primary only: the branch's projection lands off the mask wherever it is in view)."""
     branches = SecondaryBranches(config, np.random.default_rng(0))
     primary = BranchModel(PRIMARY.points[::10], PRIMARY.radii[::10])
     detection = SecondaryDetection(BRANCH.points[5::10], np.full(len(BRANCH.points[5::10]), 0.004))
     assert branches.add_detections([detection], primary) == 1
     (branch,) = branches._branches
     before = branch.trust
-    branches.update_trust(_frame(camera_height_m, [PRIMARY]))
+    branches.update_trust(_frame(camera_height_m, list(mask_tubes)))
     return branch.trust - before
 
 
@@ -102,14 +102,7 @@ def _trust_change_beside_a_thin_mask(offset_px: float, config: ModelerConfig) ->
     (a, b), _ = project_points(np.array([middle, moved]), pose, INTRINSICS)
     shift = np.array([offset_px * step_m / np.linalg.norm(b - a), 0.0, 0.0])
     thin = straight_tube(BRANCH.points[0] + shift, BRANCH.points[-1] + shift, 0.001)
-    branches = SecondaryBranches(config, np.random.default_rng(0))
-    primary = BranchModel(PRIMARY.points[::10], PRIMARY.radii[::10])
-    detection = SecondaryDetection(BRANCH.points[5::10], np.full(len(BRANCH.points[5::10]), 0.004))
-    assert branches.add_detections([detection], primary) == 1
-    (branch,) = branches._branches
-    before = branch.trust
-    branches.update_trust(_frame(0.50, [PRIMARY, thin]))
-    return branch.trust - before
+    return _trust_after(0.50, config, (PRIMARY, thin))
 
 
 def test_the_trust_tolerance_keeps_a_branch_a_few_pixels_beside_a_learned_mask() -> None:
