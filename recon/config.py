@@ -6,6 +6,8 @@ where the authors' code differs).
 
 from __future__ import annotations
 
+import json
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 
 from recon.validation import require_positive
@@ -233,3 +235,33 @@ class ModelerConfig:
             return self
         tolerance = self.consistency_tolerance_px if learned else 0.0
         return replace(self, secondary_trust_tolerance_px=tolerance)
+
+
+def modeler_overrides(items: Sequence[str]) -> dict[str, object]:
+    """``KEY=VALUE`` strings (command lines) as ModelerConfig field values.
+
+    Args:
+        items: Each ``FIELD=VALUE`` with VALUE in JSON (``4``, ``0.5``, ``true``, ``null``).
+
+    Returns:
+        Field name -> value, for ``dataclasses.replace(config, **overrides)`` (which validates).
+
+    Raises:
+        ValueError: An item without ``=``, an unknown field (the message lists them) or a value
+            that is not JSON.
+    """
+    known = {f.name for f in fields(ModelerConfig)}
+    overrides: dict[str, object] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep:
+            raise ValueError(f"modeler setting {item!r} is not FIELD=VALUE")
+        if key not in known:
+            raise ValueError(
+                f"unknown ModelerConfig field {key!r}; fields: {', '.join(sorted(known))}"
+            )
+        try:
+            overrides[key] = json.loads(text)
+        except json.JSONDecodeError as error:
+            raise ValueError(f"modeler setting {item!r}: {text!r} is not a JSON value") from error
+    return overrides

@@ -39,7 +39,7 @@ import math
 import sys
 import time
 from collections import Counter
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -47,7 +47,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from recon.config import ModelerConfig
+from recon.config import ModelerConfig, modeler_overrides
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
 from recon.io.mesh import TubeMeshConfig, tree_mesh, write_ply
@@ -571,6 +571,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--tracker", choices=TRACKERS, default="lk")
     parser.add_argument("--seed", type=int, help="modeler seed (default: the recording's, or 0)")
+    parser.add_argument(
+        "--modeler",
+        nargs="+",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="reconstruction settings over the recording's (ModelerConfig fields, JSON values), "
+        "e.g. secondary_trust_tolerance_px=4 for masks of your own learned segmenter",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     parser.add_argument(
         "--skip-bad-frames",
@@ -585,6 +593,10 @@ def main(argv: list[str] | None = None) -> int:
         source = open_source(
             args.source, bag_config_from_args(args), skip_bad_frames=args.skip_bad_frames
         )
+        modeler_config = None
+        if args.modeler:
+            _, recorded = modeler_settings(source.metadata, args.seed, None)
+            modeler_config = replace(recorded, **modeler_overrides(args.modeler))
         result = replay(
             source,
             args.out,
@@ -592,11 +604,19 @@ def main(argv: list[str] | None = None) -> int:
             segmenter=args.segmenter,
             tracker=args.tracker,
             seed=args.seed,
+            modeler_config=modeler_config,
             overwrite=args.overwrite,
             progress=not args.no_progress,
             flow_red_blue_swapped=args.flow_red_blue_swapped,
         )
-    except (ScanFormatError, ReplayError, ImportError, FileExistsError, ValueError) as error:
+    except (
+        ScanFormatError,
+        ReplayError,
+        ImportError,
+        FileExistsError,
+        ValueError,
+        TypeError,
+    ) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     _print_summary(result)

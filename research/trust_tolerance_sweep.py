@@ -18,17 +18,8 @@ import tempfile
 from dataclasses import replace
 from pathlib import Path
 
-from recon.config import ModelerConfig
+from recon.config import ModelerConfig, modeler_overrides
 from recon.replay import modeler_settings, replay
-
-
-def parse_setting(text: str) -> dict:
-    """``"a=1,b=true"`` -> {"a": 1, "b": True} (values read as JSON)."""
-    values = {}
-    for item in filter(None, text.split(",")):
-        key, value = item.split("=", 1)
-        values[key] = json.loads(value)
-    return values
 
 
 def main() -> None:
@@ -38,12 +29,13 @@ def main() -> None:
     args = parser.parse_args()
     folders = sorted(p for p in args.policy_folder.iterdir() if (p / "camera.json").exists())
     for text in args.set:
+        overrides = modeler_overrides([item for item in text.split(",") if item])
         totals = {"n_gt": 0, "n_missed": 0, "n_spurious": 0, "n_duplicates": 0, "n_matched": 0}
         per_tree = []
         for folder in folders:
             metadata = json.loads((folder / "metadata.json").read_text())
             seed, config = modeler_settings(metadata, None, None)
-            config = replace(config or ModelerConfig(), **parse_setting(text))
+            config = replace(config or ModelerConfig(), **overrides)
             with tempfile.TemporaryDirectory() as out:
                 result = replay(
                     folder,

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import cv2
 import numpy as np
 import pytest
@@ -198,9 +196,7 @@ def test_mesh_of_loops_terminates_with_truncated_search() -> None:
         cv2.line(mesh, (x, 0), (x, H - 1), 1, 3)
     for y in range(15, H - 10, 25):
         cv2.line(mesh, (0, y), (W - 1, y), 1, 3)
-    start = time.perf_counter()
-    result = fit_mask_curves(mesh.astype(bool))
-    assert time.perf_counter() - start < 2.0
+    result = fit_mask_curves(mesh.astype(bool))  # returns: the search is bounded, not timed here
     assert result.search_truncated
     config = Curve2DConfig()
     assert result.paths_evaluated <= config.max_primary_paths + config.max_secondary_paths

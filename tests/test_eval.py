@@ -42,7 +42,7 @@ from branch_gym.evaluation.trials import (
 )
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
-from recon.config import ModelerConfig
+from recon.config import ModelerConfig, modeler_overrides
 from recon.io.folder import ScanFolder
 from recon.metrics import TreeMetrics, aggregate
 from recon.model import BranchModel, TreeModel
@@ -507,3 +507,29 @@ def test_trials_of_learned_masks_before_the_trust_tolerance_are_not_mixed_with_n
     learned = ScanConfig(segmenter="learned")
     assert learned.modeler_config().secondary_trust_tolerance_px == 4.0
     assert scan_hash(learned) != scan_hash(replace(learned, modeler=exact))
+
+
+def test_modeler_settings_from_the_command_line() -> None:
+    items = ["secondary_trust_tolerance_px=0", "secondary_trust_redetected=true"]
+    assert modeler_overrides(items) == {
+        "secondary_trust_tolerance_px": 0,
+        "secondary_trust_redetected": True,
+    }
+    for bad, message in (
+        ("bogus=1", "unknown ModelerConfig field 'bogus'"),
+        ("secondary_trust_min", "not FIELD=VALUE"),
+        ("secondary_trust_min=low", "not a JSON value"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            modeler_overrides([bad])
+
+
+def test_eval_cli_refuses_a_bad_modeler_setting(tmp_path: Path, capsys) -> None:
+    from branch_gym.evaluation.cli import main
+
+    argv = ["--policies", "none", "--trees", "1", "--out", str(tmp_path / "out")]
+    with pytest.raises(SystemExit) as exit_info:
+        main([*argv, "--modeler", "secondary_trust_tolerance_px=-1"])
+    assert exit_info.value.code == 2
+    assert "secondary_trust_tolerance_px must be >= 0" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

@@ -192,6 +192,10 @@ def test_the_trust_tolerance_follows_the_mask_source(recording, tmp_path, monkey
             return masks[0]
 
     assert tolerance(scan, "now_learned", segmenter=Replayer()) == 4.0
+    assert main([str(learned), "--out", str(tmp_path / "cli"), "--no-progress",
+                 "--modeler", "secondary_trust_tolerance_px=1.5"]) == 0  # fmt: skip
+    summary = json.loads((tmp_path / "cli" / "summary.json").read_text())
+    assert summary["modeler_config"]["secondary_trust_tolerance_px"] == 1.5
 
 
 def test_learned_segmenter_missing_is_a_clear_error(monkeypatch):

@@ -30,6 +30,7 @@ import argparse
 import logging
 import sys
 import traceback
+from dataclasses import replace
 from pathlib import Path
 
 from tqdm import tqdm
@@ -47,6 +48,7 @@ from branch_gym.evaluation.report import failure_reasons, format_comparison
 from branch_gym.evaluation.runner import ConfigMismatchError
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WORLDS, WorldConfig
+from recon.config import modeler_overrides
 
 EXIT_USAGE = 2
 EXIT_TRIAL_FAILED = 1
@@ -92,6 +94,14 @@ def build_parser() -> argparse.ArgumentParser:
         "--end-height", type=float, metavar="M", help="scan end height (m); lower for quick runs"
     )
     parser.add_argument(
+        "--modeler",
+        nargs="+",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="reconstruction settings (recon.config.ModelerConfig fields, JSON values), e.g. "
+        "secondary_trust_tolerance_px=0",
+    )
+    parser.add_argument(
         "--record",
         type=Path,
         metavar="DIR",
@@ -124,6 +134,8 @@ def main(argv: list[str] | None = None) -> int:
         scan = ScanConfig(world=world).replace(
             **{k: v for k, v in changes.items() if v is not None}
         )
+        if args.modeler:
+            scan = scan.replace(modeler=replace(scan.modeler, **modeler_overrides(args.modeler)))
         config = EvalConfig(
             tuple(args.policies),
             args.trees,
