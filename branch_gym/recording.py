@@ -109,11 +109,7 @@ def _finish(writer: ScanWriter, session: ScanSession, seed: int, policy: str) ->
             "created_by": "branch_gym.recording",
             "seed": seed,
             "policy": policy,
-            "modeler": {
-                "seed": seed,
-                "tracker": config.tracker,
-                "config": asdict(config.modeler),
-            },
+            "modeler": {"seed": seed, "tracker": config.tracker, "config": asdict(config.modeler)},
             "scan": {
                 "segmenter": config.segmenter,
                 "speed_mps": config.speed_mps,
