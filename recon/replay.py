@@ -69,6 +69,7 @@ logger = logging.getLogger(__name__)
 
 TRACKERS = ("lk",)
 MASK_SOURCES = ("mask",)  # masks from the recording; "learned[:PATH]" -> recon.segmentation
+LEARNED_KIND = "learned"  # the kind of a learned segmenter's spec (before the ":PATH")
 
 
 class ReplayError(RuntimeError):
@@ -153,7 +154,7 @@ def load_segmenter(spec: str | None):
     """
     if spec is None or spec in MASK_SOURCES:
         return None
-    if spec.split(":", 1)[0] != "learned":
+    if spec.split(":", 1)[0] != LEARNED_KIND:
         raise ValueError(
             f"unknown segmenter {spec!r}: expected 'mask' (the recorded masks), 'learned' or "
             "'learned:PATH'"
@@ -195,7 +196,7 @@ def _learned_masks(source: ScanSource) -> bool:
     """The recorded masks come from a learned segmenter (a branch_gym recording says so)."""
     scan = source.metadata.get("scan", {}) if isinstance(source.metadata, dict) else {}
     segmenter = scan.get("segmenter") if isinstance(scan, dict) else None
-    return isinstance(segmenter, str) and segmenter.split(":", 1)[0] == "learned"
+    return isinstance(segmenter, str) and segmenter.split(":", 1)[0] == LEARNED_KIND
 
 
 def load_truth(path: str | Path) -> TreeModel:
