@@ -24,11 +24,11 @@ from branch_gym.control import (
     OrbitMove,
     PrimaryBranchController,
 )
-from branch_gym.sensing import LEARNED_KIND, TRACKERS, Sensor, check_segmenter_spec, make_tracker
+from branch_gym.sensing import TRACKERS, Sensor, check_segmenter_spec, make_tracker
 from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.validation import require_positive
 from branch_gym.sim.world import World, WorldConfig
-from recon.config import ModelerConfig
+from recon.config import ModelerConfig, is_learned_segmenter
 from recon.frame import Frame
 from recon.model import TreeModel
 from recon.modeler import IterationReport, Modeler, Outcome
@@ -128,8 +128,7 @@ class ScanConfig:
 
     def modeler_config(self) -> ModelerConfig:
         """``modeler`` with the settings left to the mask source resolved for ``segmenter``."""
-        learned = self.segmenter.split(":", 1)[0] == LEARNED_KIND
-        return self.modeler.for_masks(learned=learned)
+        return self.modeler.for_masks(learned=is_learned_segmenter(self.segmenter))
 
     def replace(self, **changes: object) -> ScanConfig:
         """A copy with some fields changed."""

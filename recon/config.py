@@ -12,6 +12,14 @@ from dataclasses import dataclass, fields, replace
 
 from recon.validation import require_positive
 
+LEARNED_SEGMENTER = "learned"  # the kind of a learned segmenter's spec: "learned[:PATH]"
+
+
+def is_learned_segmenter(spec: object) -> bool:
+    """Whether a segmenter spec (``"learned"``, ``"learned:PATH"``; any other value: no) names a
+    learned segmenter, whose masks :meth:`ModelerConfig.for_masks` treats as approximate."""
+    return isinstance(spec, str) and spec.split(":", 1)[0] == LEARNED_SEGMENTER
+
 
 @dataclass(frozen=True)
 class ModelerConfig:
@@ -197,10 +205,7 @@ class ModelerConfig:
                 raise ValueError(f"ModelerConfig.{name} is a fraction in (0, 1]")
         if not 0.0 <= self.secondary_trust_in_view <= 1.0:
             raise ValueError("ModelerConfig.secondary_trust_in_view is a fraction in [0, 1]")
-        for name in (
-            "primary_depth_gate_m",
-            "primary_front_depth_gate_m",
-        ):
+        for name in ("primary_depth_gate_m", "primary_front_depth_gate_m"):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"ModelerConfig.{name} must be >= 0")
         tolerance = self.secondary_trust_tolerance_px

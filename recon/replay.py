@@ -47,7 +47,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from recon.config import ModelerConfig, modeler_overrides
+from recon.config import ModelerConfig, is_learned_segmenter, modeler_overrides
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
 from recon.io.mesh import TubeMeshConfig, tree_mesh, write_ply
@@ -69,7 +69,6 @@ logger = logging.getLogger(__name__)
 
 TRACKERS = ("lk",)
 MASK_SOURCES = ("mask",)  # masks from the recording; "learned[:PATH]" -> recon.segmentation
-LEARNED_KIND = "learned"  # the kind of a learned segmenter's spec (before the ":PATH")
 
 
 class ReplayError(RuntimeError):
@@ -154,7 +153,7 @@ def load_segmenter(spec: str | None):
     """
     if spec is None or spec in MASK_SOURCES:
         return None
-    if spec.split(":", 1)[0] != LEARNED_KIND:
+    if not is_learned_segmenter(spec):
         raise ValueError(
             f"unknown segmenter {spec!r}: expected 'mask' (the recorded masks), 'learned' or "
             "'learned:PATH'"
@@ -195,8 +194,7 @@ def modeler_settings(
 def _learned_masks(source: ScanSource) -> bool:
     """The recorded masks come from a learned segmenter (a branch_gym recording says so)."""
     scan = source.metadata.get("scan", {}) if isinstance(source.metadata, dict) else {}
-    segmenter = scan.get("segmenter") if isinstance(scan, dict) else None
-    return isinstance(segmenter, str) and segmenter.split(":", 1)[0] == LEARNED_KIND
+    return isinstance(scan, dict) and is_learned_segmenter(scan.get("segmenter"))
 
 
 def load_truth(path: str | Path) -> TreeModel:
