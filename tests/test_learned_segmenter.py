@@ -71,16 +71,26 @@ def test_segment_any_size_with_and_without_previous() -> None:
         assert mask.shape == (250, 330) and mask.dtype == bool
 
 
-def test_batch_norm_folding_is_exact() -> None:
+def test_the_inference_network_and_the_mask_match_the_network() -> None:
     torch.manual_seed(0)
     net = SegmenterNet(TINY_NET)
     net.train()
     net(torch.randn(4, net.config.in_channels, 64, 64))  # non-trivial running statistics
     net.eval()
     x = torch.randn(1, net.config.in_channels, 64, 64)
-    folded = LearnedSegmenter(net)._net
+    segmenter = LearnedSegmenter(net)
+    fast = segmenter._net  # BN folded, 1x1 convs as matrix products
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in fast.modules())
+    assert not any(isinstance(m, torch.nn.Conv2d) and m.kernel_size == (1, 1)
+                   for m in fast.modules())  # fmt: skip
     with torch.inference_mode():
-        assert torch.allclose(net(x), folded(x), atol=1e-4)
+        reference = net(x)
+        assert torch.allclose(reference, fast(x), atol=1e-4)
+    # The mask thresholded before depth-to-space is the logits' mask.
+    rgb = np.random.default_rng(1).integers(0, 256, (62, 70, 3), dtype=np.uint8)
+    logits = segmenter.logits(rgb)
+    assert logits.shape == (62, 70)
+    np.testing.assert_array_equal(segmenter.segment(rgb), logits > 0.0)
 
 
 def test_training_lowers_the_loss(tiny_data: Path, tmp_path: Path) -> None:

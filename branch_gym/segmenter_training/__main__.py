@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from branch_gym.segmenter_training.config import GenerateConfig, TrainConfig
+from branch_gym.segmenter_training.config import FlowAugmentConfig, GenerateConfig, TrainConfig
 from branch_gym.segmenter_training.evaluate import EvaluateConfig, evaluate_segmenters
 from branch_gym.segmenter_training.generate import (
     EVAL_PRESETS,
@@ -97,10 +97,16 @@ def _generate_orchard(args: argparse.Namespace) -> None:
 def _train(args: argparse.Namespace) -> None:
 
     base = TrainConfig()
-    net = replace(base.net, use_flow=args.flow or args.flow_picture, flow_picture=args.flow_picture)
+    net = replace(
+        base.net, use_flow=args.flow or args.flow_picture, flow_picture=args.flow_picture,
+        widths=tuple(args.widths or base.net.widths),
+        decoder_widths=tuple(args.decoder_widths or base.net.decoder_widths),
+    )  # fmt: skip
+    flow = replace(base.orchard.flow, no_flow_probability=args.no_flow_probability)
     config = replace(
         base, net=net, steps=args.steps, batch_size=args.batch_size,
-        learning_rate=args.learning_rate,
+        learning_rate=args.learning_rate, side_branch_weight=args.side_branch_weight,
+        orchard=replace(base.orchard, flow=flow),
     )  # fmt: skip
     train(
         config,
@@ -224,6 +230,17 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument("--steps", type=int, default=TrainConfig.steps)
     tr.add_argument("--batch-size", type=int, default=TrainConfig.batch_size)
     tr.add_argument("--learning-rate", type=float, default=TrainConfig.learning_rate)
+    tr.add_argument("--widths", type=int, nargs="+", default=None,
+                    help="encoder channels per level (default: SegmenterNetConfig's)")  # fmt: skip
+    tr.add_argument("--decoder-widths", type=int, nargs="+", default=None,
+                    help="decoder channels, one fewer than --widths")  # fmt: skip
+    tr.add_argument("--side-branch-weight", type=float, default=TrainConfig.side_branch_weight,
+                    help="weight of side-branch pixels in the cross-entropy")  # fmt: skip
+    tr.add_argument(
+        "--no-flow-probability", type=float,
+        default=FlowAugmentConfig.no_flow_probability,
+        help="share of orchard training frames seen without a flow picture (colour alone)",
+    )  # fmt: skip
     tr.add_argument("--flow", action="store_true", help="RGB + optical flow input (ablation)")
     tr.add_argument(
         "--flow-picture", action="store_true",

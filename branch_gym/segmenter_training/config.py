@@ -233,6 +233,10 @@ class TrainConfig:
         weight_decay: AdamW weight decay.
         warmup_fraction: Fraction of the steps spent warming up.
         dice_weight: Weight of the soft-Dice term next to the binary cross-entropy.
+        side_branch_weight: Weight of side-branch pixels in the cross-entropy (1: as every
+            pixel). Side branches are a few pixels wide and a third of their pixels were missed
+            at 1 (docs/orchard_segmenter.md, "Side branches"), while the rotations that find
+            them need them whole.
         checkpoint_every: Steps between checkpoints.
         validate_every: Steps between validation IoU measurements.
         threshold: Branch probability threshold of the shipped segmenter.
@@ -250,10 +254,17 @@ class TrainConfig:
     weight_decay: float = 1e-4
     warmup_fraction: float = 0.05
     dice_weight: float = 1.0
+    side_branch_weight: float = 1.0
     checkpoint_every: int = 100
     validate_every: int = 500
     threshold: float = 0.5
     threads: int = 1
+
+    def __post_init__(self) -> None:
+        if not self.side_branch_weight > 0.0:
+            raise ValueError(
+                f"TrainConfig.side_branch_weight must be > 0, got {self.side_branch_weight!r}"
+            )
 
     def to_dict(self) -> dict:
         """Plain JSON-able values."""

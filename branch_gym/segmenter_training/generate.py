@@ -50,6 +50,20 @@ def labels_to_classes(labels: np.ndarray) -> np.ndarray:
     return classes
 
 
+def branch_target(classes: np.ndarray) -> np.ndarray:
+    """The training target of a class map: the scanned tree, its side branches told apart.
+
+    Args:
+        classes: (H, W) uint8 classes (:func:`labels_to_classes`).
+
+    Returns:
+        (H, W) uint8: 0 not the scanned tree, ``CLASS_PRIMARY`` (1) the primary,
+        ``CLASS_SECONDARY`` (2) a side branch (the training loss weighs them apart).
+    """
+    branch = (classes == CLASS_PRIMARY) | (classes == CLASS_SECONDARY)
+    return np.where(branch, classes, 0).astype(np.uint8)
+
+
 def branch_mask(labels: np.ndarray) -> np.ndarray:
     """(H, W) bool: the scanned tree's primary and secondaries (1 <= label < 100)."""
     return (labels >= 1) & (labels < _FIRST_CLUTTER_LABEL)

@@ -31,7 +31,7 @@ import torch
 
 from branch_gym.segmenter_training.augment import camera_effects, smooth_noise
 from branch_gym.segmenter_training.config import FlowAugmentConfig, OrchardAugmentConfig
-from branch_gym.segmenter_training.generate import branch_mask
+from branch_gym.segmenter_training.generate import branch_mask, branch_target, labels_to_classes
 from recon.segmentation.flow import DenseFlowConfig, compute_flow
 from recon.segmentation.flow import flow_to_picture_fast as flow_to_picture
 from recon.segmentation.inputs import make_picture_input
@@ -157,9 +157,12 @@ def training_frame(
         crop_hw: Crop (height, width).
 
     Returns:
-        ((6, h, w) float32 network input, (h, w) bool target).
+        ((6, h, w) float32 network input, (h, w) uint8 target: 0 not the scanned tree,
+        1 its primary, 2 a side branch (:func:`~branch_gym.segmenter_training.generate.
+        branch_target`)).
     """
     target = branch_mask(labels)
+    classes = branch_target(labels_to_classes(labels))
     if rng.random() < config.distractor_probability:
         rgb_pair, exact_flow = add_far_copy(rgb_pair, exact_flow, target, rng)
     frames = camera_effects(rgb_pair, rng, config.camera)
@@ -177,7 +180,7 @@ def training_frame(
         picture = flow_to_picture(_turn(flow, rng, flow_config))
     current = frames[1]
     if rng.random() < config.flip_probability:  # a mirrored world: the picture mirrors too
-        current, target = current[:, ::-1], target[:, ::-1]
+        current, classes = current[:, ::-1], classes[:, ::-1]
         picture = None if picture is None else picture[:, ::-1]
     h, w = current.shape[:2]
     ch, cw = crop_hw
@@ -185,7 +188,7 @@ def training_frame(
     window = (slice(top, top + ch), slice(left, left + cw))
     current = np.ascontiguousarray(current[window])
     picture = None if picture is None else np.ascontiguousarray(picture[window])
-    return make_picture_input(current, picture), np.ascontiguousarray(target[window])
+    return make_picture_input(current, picture), np.ascontiguousarray(classes[window])
 
 
 class OrchardPairBatches(torch.utils.data.Dataset):

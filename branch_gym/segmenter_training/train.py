@@ -28,9 +28,9 @@ from tqdm import tqdm
 from branch_gym.segmenter_training.augment import augment_pair
 from branch_gym.segmenter_training.config import TrainConfig
 from branch_gym.segmenter_training.generate import (
-    CLASS_PRIMARY,
     CLASS_SECONDARY,
     branch_mask,
+    branch_target,
     load_shards,
 )
 from branch_gym.segmenter_training.orchard_augment import OrchardPairBatches
@@ -46,10 +46,6 @@ logger = logging.getLogger(__name__)
 
 CHECKPOINT_NAME = "checkpoint.pt"
 HISTORY_NAME = "history.jsonl"
-
-
-def _branch(classes: np.ndarray) -> np.ndarray:
-    return (classes == CLASS_PRIMARY) | (classes == CLASS_SECONDARY)
 
 
 class PairBatches(torch.utils.data.Dataset):
@@ -74,7 +70,7 @@ class PairBatches(torch.utils.data.Dataset):
         return self.config.steps
 
     def __getitem__(self, step: int) -> tuple[torch.Tensor, torch.Tensor]:
-        """((B, C, H, W) float input, (B, 1, H, W) float target) of batch ``step``."""
+        """((B, C, H, W) float input, (B, 1, H, W) float branch_target) of batch ``step``."""
         cv2.setNumThreads(1)
         rng = np.random.default_rng([self.seed, step])
         indices = rng.integers(0, len(self.rgb), size=self.config.batch_size)
@@ -92,22 +88,33 @@ class PairBatches(torch.utils.data.Dataset):
             previous = frames[0] if use_previous else None
             inputs.append(make_input(frames[1], previous, self.config.net.use_flow,
                                      self.config.flow))  # fmt: skip
-            targets.append(_branch(classes[1])[None].astype(np.float32))
+            targets.append(branch_target(classes[1])[None].astype(np.float32))
         return torch.from_numpy(np.stack(inputs)), torch.from_numpy(np.stack(targets))
 
 
-def segmentation_loss(logits: torch.Tensor, target: torch.Tensor, dice_weight: float):
+def segmentation_loss(
+    logits: torch.Tensor,
+    target: torch.Tensor,
+    dice_weight: float,
+    side_branch_weight: float = 1.0,
+) -> torch.Tensor:
     """Binary cross-entropy plus ``dice_weight`` times the soft-Dice loss of the batch.
 
     Args:
         logits: (B, 1, H, W) branch logits.
-        target: (B, 1, H, W) float {0, 1} branch mask.
+        target: (B, 1, H, W) float :func:`branch_target`: 0 background, 1 primary, 2 side
+            branch (a {0, 1} mask works too: all its branch pixels weigh 1).
         dice_weight: Weight of the Dice term.
+        side_branch_weight: Weight of side-branch pixels in the cross-entropy.
 
     Returns:
         Scalar loss tensor.
     """
-    bce = functional.binary_cross_entropy_with_logits(logits, target)
+    weight = None
+    if side_branch_weight != 1.0:
+        weight = torch.where(target == CLASS_SECONDARY, side_branch_weight, 1.0)
+    target = (target > 0).to(logits.dtype)
+    bce = functional.binary_cross_entropy_with_logits(logits, target, weight=weight)
     prob = torch.sigmoid(logits)
     dims = (1, 2, 3)
     inter = (prob * target).sum(dims)
@@ -163,7 +170,7 @@ def validation_iou(
         inter = union = 0
         for pair, cls in zip(rgb, classes, strict=True):
             mask = segmenter.segment(pair[1], pair[0] if with_previous else None)
-            truth = _branch(cls[1])
+            truth = branch_target(cls[1]) > 0
             inter += int(np.count_nonzero(mask & truth))
             union += int(np.count_nonzero(mask | truth))
         result[name] = pooled_iou(inter, union)
@@ -300,7 +307,7 @@ def train(
     for x, y in loader:
         for group in optimiser.param_groups:
             group["lr"] = config.learning_rate * _lr_factor(step, config)
-        loss = segmentation_loss(model(x), y, config.dice_weight)
+        loss = segmentation_loss(model(x), y, config.dice_weight, config.side_branch_weight)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
         optimiser.step()

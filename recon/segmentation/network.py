@@ -14,6 +14,7 @@ from __future__ import annotations
 import itertools
 from dataclasses import asdict, dataclass
 
+import numpy as np
 import torch
 from torch import nn
 from torch.nn import functional
@@ -23,6 +24,8 @@ RGB_CHANNELS = 3
 # the flow was computed, 0 where no previous frame exists), or the flow picture's RGB
 # (``flow_picture``; white where there is no flow).
 FLOW_CHANNELS = 3
+# The head predicts 2x2 sub-pixels per half-resolution pixel (depth-to-space).
+SUBPIXELS = 4
 
 
 @dataclass(frozen=True)
@@ -140,7 +143,7 @@ class SegmenterNet(nn.Module):
         )
         self.fuse = nn.ModuleList(_conv(co, co, separable=sep) for co in dw)
         self.head = nn.Sequential(
-            nn.Conv2d(dw[-1], 4 * self.config.out_channels, 1), nn.PixelShuffle(2)
+            nn.Conv2d(dw[-1], SUBPIXELS * self.config.out_channels, 1), nn.PixelShuffle(2)
         )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -152,6 +155,21 @@ class SegmenterNet(nn.Module):
         Returns:
             (B, out_channels, H, W) logits; channel 0 is branch versus not.
         """
+        return self.head[1](self.subpixel_logits(x))
+
+    def subpixel_logits(self, x: torch.Tensor) -> torch.Tensor:
+        """The logits before depth-to-space: each half-resolution pixel's 2x2 sub-pixels.
+
+        ``forward`` is ``PixelShuffle(2)`` of this; a mask thresholded here and then put in
+        place (:func:`subpixels_to_image`) is the same mask at a quarter of the memory traffic.
+
+        Args:
+            x: (B, in_channels, H, W) float input.
+
+        Returns:
+            (B, 4 * out_channels, H / 2, W / 2) logits; channel 4 c + 2 i + j is output channel
+            c at sub-pixel row i, column j.
+        """
         skips = [self.stem(x)]
         for block in self.down:
             skips.append(block(skips[-1]))
@@ -162,7 +180,20 @@ class SegmenterNet(nn.Module):
                 lateral(y), size=skip.shape[-2:], mode="bilinear", align_corners=False
             )
             y = fuse(torch.relu(y + skip_proj(skip)))
-        return self.head(y)
+        return self.head[0](y)
+
+
+def subpixels_to_image(subpixels: np.ndarray) -> np.ndarray:
+    """Depth-to-space of one output channel: ``PixelShuffle(2)`` in numpy, any dtype.
+
+    Args:
+        subpixels: (4, h, w) array, plane 2 i + j holding sub-pixel row i, column j.
+
+    Returns:
+        (2 h, 2 w) array.
+    """
+    _, h, w = subpixels.shape
+    return subpixels.reshape(2, 2, h, w).transpose(2, 0, 3, 1).reshape(2 * h, 2 * w)
 
 
 def count_parameters(model: nn.Module) -> int:
