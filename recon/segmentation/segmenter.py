@@ -62,6 +62,16 @@ def fuse_batch_norm(model: nn.Module) -> nn.Module:
     return fused
 
 
+def _is_pointwise(module: nn.Module) -> bool:
+    """Whether ``module`` is a 1x1, stride-1, ungrouped convolution (a per-pixel matrix)."""
+    return (
+        isinstance(module, nn.Conv2d)
+        and module.kernel_size == (1, 1)
+        and module.stride == (1, 1)
+        and module.groups == 1
+    )
+
+
 class PointwiseMatmul(nn.Module):
     """A 1x1 convolution (stride 1, no groups) as one matrix product over channels-last pixels.
 
@@ -75,7 +85,7 @@ class PointwiseMatmul(nn.Module):
 
     def __init__(self, conv: nn.Conv2d) -> None:
         super().__init__()
-        if conv.kernel_size != (1, 1) or conv.stride != (1, 1) or conv.groups != 1:
+        if not _is_pointwise(conv):
             raise ValueError(f"PointwiseMatmul needs a 1x1, stride-1, ungrouped conv, got {conv}")
         self.weight_t = nn.Parameter(conv.weight.detach()[:, :, 0, 0].t().contiguous(), False)
         bias = conv.bias.detach() if conv.bias is not None else torch.zeros(conv.out_channels)
@@ -102,12 +112,7 @@ def inference_network(model: nn.Module) -> nn.Module:
     fused = fuse_batch_norm(model).to(memory_format=torch.channels_last)
     for module in list(fused.modules()):
         for name, child in list(module.named_children()):
-            if (
-                isinstance(child, nn.Conv2d)
-                and child.kernel_size == (1, 1)
-                and child.stride == (1, 1)
-                and child.groups == 1
-            ):
+            if _is_pointwise(child):
                 setattr(module, name, PointwiseMatmul(child))
     return fused
 
