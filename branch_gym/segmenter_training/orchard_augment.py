@@ -31,7 +31,7 @@ import torch
 
 from branch_gym.segmenter_training.augment import camera_effects, smooth_noise
 from branch_gym.segmenter_training.config import FlowAugmentConfig, OrchardAugmentConfig
-from branch_gym.segmenter_training.generate import branch_mask, branch_target, labels_to_classes
+from branch_gym.segmenter_training.generate import branch_target, labels_to_classes
 from recon.segmentation.flow import DenseFlowConfig, compute_flow
 from recon.segmentation.flow import flow_to_picture_fast as flow_to_picture
 from recon.segmentation.inputs import make_picture_input
@@ -161,8 +161,8 @@ def training_frame(
         1 its primary, 2 a side branch (:func:`~branch_gym.segmenter_training.generate.
         branch_target`)).
     """
-    target = branch_mask(labels)
     classes = branch_target(labels_to_classes(labels))
+    target = classes > 0
     if rng.random() < config.distractor_probability:
         rgb_pair, exact_flow = add_far_copy(rgb_pair, exact_flow, target, rng)
     frames = camera_effects(rgb_pair, rng, config.camera)
