@@ -10,6 +10,8 @@ each frame, timed alone. Figures (medians, milliseconds):
 * ``segment_no_previous_ms``: the same without a previous frame (a scan's first frame: no flow).
 * ``segment_cpu_ms``: CPU time of the ``segment_ms`` call (``time.thread_time``): what the call
   costs one core when other processes share the machine (wall time then grows, CPU time not).
+* ``segment_torch_ms``: ``segment_ms`` with the network on PyTorch instead of ONNX Runtime
+  (``load_segmenter("learned", runtime="torch")``, the runtime before; same masks), same run.
 * ``segment_rgb_clean_ms``: ``segment_ms`` of the clean world's RGB-only network
   (``learned:.../rgb_clean.pt``, the default before issue 32), in the same run: the reference
   for machines that differ.
@@ -33,18 +35,19 @@ WARMUP_CALLS = 3
 REPEATS = 3  # each frame is segmented this many times
 
 
-def bench_segment(spec: str = "learned") -> dict[str, float]:
+def bench_segment(spec: str = "learned", runtime: str = "auto") -> dict[str, float]:
     """Median milliseconds of one 320x240 frame on one core.
 
     Args:
         spec: Segmenter spec (``"learned"`` or ``"learned:PATH"``).
+        runtime: What runs the network (``load_segmenter``'s ``runtime``).
 
     Returns:
         ``{"segment_ms": ..., "segment_no_previous_ms": ..., "segment_cpu_ms": ...}``.
     """
     torch.set_num_threads(1)
     cv2.setNumThreads(1)
-    segmenter = load_segmenter(spec)
+    segmenter = load_segmenter(spec, runtime)
     config = EvaluateConfig(trees=len(SEEDS), frames_per_tree=FRAMES_PER_TREE)
     frames = [
         (previous, rgb)
@@ -71,6 +74,7 @@ def bench_segment(spec: str = "learned") -> dict[str, float]:
 def run() -> dict[str, float]:
     """Entry point of ``bench/run.py``: :func:`bench_segment` of the shipped and the RGB network."""
     figures = bench_segment()
+    figures["segment_torch_ms"] = bench_segment(runtime="torch")["segment_ms"]
     reference = bench_segment(f"learned:{RGB_CLEAN_WEIGHTS}")
     figures["segment_rgb_clean_ms"] = reference["segment_ms"]
     return figures

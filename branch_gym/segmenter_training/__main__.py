@@ -1,4 +1,4 @@
-"""CLI: ``python -m branch_gym.segmenter_training generate|train|evaluate|export|score-real ...``.
+"""CLI: ``python -m branch_gym.segmenter_training generate|train|evaluate|export|export-onnx|...``.
 
 Examples::
 
@@ -7,6 +7,7 @@ Examples::
         --run runs/segmenter/run --seed 0 --export runs/segmenter.pt
     python -m branch_gym.segmenter_training evaluate \
         --weights recon/segmentation/weights/rgb_clean.pt
+    python -m branch_gym.segmenter_training export-onnx recon/segmentation/weights/orchard_flow.pt
     python -m branch_gym.segmenter_training score-real --data ../shared/data/real_dev \
         --weights learned --out results.json --figure real.png
 
@@ -35,6 +36,7 @@ from branch_gym.segmenter_training.generate import (
     shard_path,
     write_shard,
 )
+from branch_gym.segmenter_training.onnx_export import export_onnx
 from branch_gym.segmenter_training.orchard_pairs import (
     OrchardPairsConfig,
     generate_orchard_shard,
@@ -194,6 +196,11 @@ def _export(args: argparse.Namespace) -> None:
     tqdm.write(f"exported step {step} of {args.run} to {args.out}")
 
 
+def _export_onnx(args: argparse.Namespace) -> None:
+    for weights in args.weights:
+        tqdm.write(f"wrote {export_onnx(weights)}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Parse the command line and run one command."""
     parser = argparse.ArgumentParser(prog="python -m branch_gym.segmenter_training")
@@ -273,6 +280,9 @@ def main(argv: list[str] | None = None) -> int:
     ex.add_argument("--run", required=True)
     ex.add_argument("--out", required=True)
 
+    eo = sub.add_parser("export-onnx", help="write WEIGHTS.onnx beside each weights file")
+    eo.add_argument("weights", nargs="+", help="weights files (.pt)")
+
     sr = sub.add_parser("score-real", help="score on real frames with hand masks (issue 15)")
     sr.add_argument("--data", required=True, help="folder of N.png, N_flow.png, N_trunk_K.png ...")
     sr.add_argument("--weights", default="learned", help="'learned', 'learned:PATH' or a PATH")
@@ -291,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         "evaluate": _evaluate,
         "evaluate-pairs": _evaluate_pairs,
         "export": _export,
+        "export-onnx": _export_onnx,
         "score-real": _score_real,
     }
     commands[args.command](args)

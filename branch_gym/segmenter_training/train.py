@@ -33,6 +33,11 @@ from branch_gym.segmenter_training.generate import (
     branch_target,
     load_shards,
 )
+from branch_gym.segmenter_training.onnx_export import (
+    EXPORT_PACKAGES,
+    export_onnx,
+    exporter_available,
+)
 from branch_gym.segmenter_training.orchard_augment import OrchardPairBatches
 from branch_gym.segmenter_training.orchard_pairs import load_orchard_shards
 from recon.segmentation.flow import flow_to_picture_fast
@@ -371,6 +376,13 @@ def export(
     if data is not None:
         meta.update(pairs=len(data["rgb"]), trees=len(np.unique(data["seeds"])))
     save_weights(path, model, config.flow, config.threshold, meta)
+    if exporter_available():
+        export_onnx(path)
+    else:
+        logger.warning(
+            "no ONNX export of %s (the exporter's packages %s are missing): the segmenter runs "
+            "on PyTorch, about half as fast", path, EXPORT_PACKAGES,
+        )  # fmt: skip
     summary = {"train": config.to_dict(), "meta": meta,
                "parameters": count_parameters(model),
                "final_validation": next((h for h in reversed(history) if "iou" in h), None),
