@@ -343,6 +343,19 @@ def test_trials_of_a_model_file_changed_in_place_are_refused(tmp_path: Path) -> 
     check_output_folder(EvalConfig(("none",), trees=1), out)  # other policies are unaffected
 
 
+def test_trials_of_other_segmenter_weights_are_refused(tmp_path: Path) -> None:
+    # "learned" names the shipped weights, not which ones: a retrained file must not mix in.
+    weights = tmp_path / "seg.pt"
+    weights.write_bytes(b"first weights")
+    config = EvalConfig(("none",), trees=1, scan=ScanConfig(segmenter=f"learned:{weights}"))
+    out = tmp_path / "out"
+    check_output_folder(config, out)
+    check_output_folder(config, out)  # unchanged: fine
+    weights.write_bytes(b"retrained weights")
+    with pytest.raises(ConfigMismatchError, match=r"segmented by other weights"):
+        check_output_folder(config, out)
+
+
 def test_trial_file_of_another_config_is_refused(tmp_path: Path) -> None:
     config = EvalConfig(("none",), trees=2)
     for seed in (0, 1):

@@ -44,12 +44,16 @@ from branch_gym.evaluation.trials import (
 )
 from branch_gym.files import write_json_atomic
 from branch_gym.scan import ScanConfig
+from recon.segmentation.onnx_network import weights_digest
+from recon.segmentation.segmenter import LEARNED_SPEC, weights_path_of
 
 logger = logging.getLogger(__name__)
 
 CONFIG_FILE = "config.json"
 # Digest of a learned policy's files, next to its trials (trials/<policy>/model.json).
 MODEL_FILE = "model.json"
+SEGMENTER_FILE = "segmenter.json"
+"""Beside the trials: the learned segmenter's weights file and digest (folder-wide)."""
 # Recorded trials (eval.py --record): JPEG frames, ~4x smaller than PNG; the replay of a JPEG
 # recording is close to, not identical with, the online model (docs/replay.md).
 RECORD_IMAGE_FORMAT = "jpg"
@@ -80,6 +84,31 @@ def check_output_folder(config: EvalConfig, out: Path) -> None:
     for policy in config.policies:
         if policy.startswith(PPO_SPEC_PREFIX):
             _check_model_file(policy, out)
+    if config.scan.segmenter.startswith(LEARNED_SPEC):
+        _check_segmenter_weights(config.scan.segmenter, out)
+
+
+def _check_segmenter_weights(spec: str, out: Path) -> None:
+    """Record the digest of a learned segmenter's weights next to the trials, or refuse a change.
+
+    The scan configuration names the segmenter (``"learned"``), not its weights: without this, a
+    folder's trials of the weights shipped before would be mixed with the new weights' ones.
+    """
+    weights = weights_path_of(spec)
+    if not weights.is_file():
+        raise FileNotFoundError(f"segmenter {spec!r}: weights file {weights} does not exist")
+    ours = {"segmenter": spec, "weights": str(weights), "sha256": weights_digest(weights)}
+    record = out / TRIALS_DIR / SEGMENTER_FILE
+    if not record.exists():
+        write_json_atomic(record, ours)
+        return
+    theirs = json.loads(record.read_text())
+    if theirs.get("sha256") != ours["sha256"]:
+        raise ConfigMismatchError(
+            f"{out} holds trials segmented by other weights than {weights} holds now (sha256 "
+            f"{str(theirs.get('sha256'))[:12]} there, {ours['sha256'][:12]} now): use another "
+            "--out, or delete its trials/ folder to start over."
+        )
 
 
 def _check_model_file(policy: str, out: Path) -> None:

@@ -262,6 +262,22 @@ class LearnedSegmenter:
         return subpixels_to_image(subpixels > self._logit_threshold)[:h, :w]
 
 
+def weights_path_of(spec: str) -> Path:
+    """The weights file a learned segmenter spec names.
+
+    Args:
+        spec: ``"learned"`` (:func:`default_weights_path`) or ``"learned:PATH"``.
+
+    Raises:
+        ValueError: Not a learned segmenter spec.
+    """
+    if spec == LEARNED_SPEC:
+        return default_weights_path()
+    if spec.startswith(LEARNED_SPEC + ":") and len(spec) > len(LEARNED_SPEC) + 1:
+        return Path(spec[len(LEARNED_SPEC) + 1 :]).expanduser()
+    raise ValueError(f"segmenter spec must be 'learned' or 'learned:PATH', got {spec!r}")
+
+
 def load_segmenter(spec: str = LEARNED_SPEC, runtime: str = "auto") -> LearnedSegmenter:
     """Load a learned segmenter from a spec string.
 
@@ -284,12 +300,7 @@ def load_segmenter(spec: str = LEARNED_SPEC, runtime: str = "auto") -> LearnedSe
     """
     if runtime not in RUNTIMES:
         raise ValueError(f"segmenter runtime must be one of {RUNTIMES}, got {runtime!r}")
-    if spec == LEARNED_SPEC:
-        path = default_weights_path()
-    elif spec.startswith(LEARNED_SPEC + ":") and len(spec) > len(LEARNED_SPEC) + 1:
-        path = Path(spec[len(LEARNED_SPEC) + 1 :]).expanduser()
-    else:
-        raise ValueError(f"segmenter spec must be 'learned' or 'learned:PATH', got {spec!r}")
+    path = weights_path_of(spec)
     model, flow, threshold, _meta = load_weights(path)
     onnx_network = None
     if runtime != "torch":
