@@ -98,16 +98,29 @@ def _check_segmenter_weights(spec: str, out: Path) -> None:
     if not weights.is_file():
         raise FileNotFoundError(f"segmenter {spec!r}: weights file {weights} does not exist")
     ours = {"segmenter": spec, "weights": str(weights), "sha256": weights_digest(weights)}
-    record = out / TRIALS_DIR / SEGMENTER_FILE
+    _record_digest(
+        out / TRIALS_DIR / SEGMENTER_FILE,
+        ours,
+        f"{out} holds trials segmented by other weights than {weights} holds now",
+        "use another --out, or delete its trials/ folder to start over",
+    )
+
+
+def _record_digest(record: Path, ours: dict, mismatch: str, remedy: str) -> None:
+    """Write ``ours`` (with its ``sha256``) to ``record``, or refuse a recorded other digest.
+
+    Raises:
+        ConfigMismatchError: ``record`` holds another ``sha256`` (the message: ``mismatch``, both
+            digests, ``remedy``).
+    """
     if not record.exists():
         write_json_atomic(record, ours)
         return
     theirs = json.loads(record.read_text())
     if theirs.get("sha256") != ours["sha256"]:
         raise ConfigMismatchError(
-            f"{out} holds trials segmented by other weights than {weights} holds now (sha256 "
-            f"{str(theirs.get('sha256'))[:12]} there, {ours['sha256'][:12]} now): use another "
-            "--out, or delete its trials/ folder to start over."
+            f"{mismatch} (sha256 {str(theirs.get('sha256'))[:12]} there, "
+            f"{ours['sha256'][:12]} now): {remedy}."
         )
 
 
@@ -120,16 +133,12 @@ def _check_model_file(policy: str, out: Path) -> None:
         digest.update(stats.read_bytes())
     ours = {"model": str(model), "sha256": digest.hexdigest()}
     record = out / TRIALS_DIR / policy_slug(policy) / MODEL_FILE
-    if not record.exists():
-        write_json_atomic(record, ours)
-        return
-    theirs = json.loads(record.read_text())
-    if theirs.get("sha256") != ours["sha256"]:
-        raise ConfigMismatchError(
-            f"{out} holds trials of {policy!r} made with another model file than {model} holds "
-            f"now (sha256 {str(theirs.get('sha256'))[:12]} there, {ours['sha256'][:12]} now): "
-            f"delete {record.parent} to re-run them, or use another --out."
-        )
+    _record_digest(
+        record,
+        ours,
+        f"{out} holds trials of {policy!r} made with another model file than {model} holds now",
+        f"delete {record.parent} to re-run them, or use another --out",
+    )
 
 
 def _mismatch_message(out: Path, theirs: dict, ours: dict) -> str:
