@@ -28,7 +28,8 @@ the same core:
 * ``env_step_orchard_learned_ms``: the LK step on the orchard world from pixels (the shipped
   learned segmenter, flow pictures from paired frames; only the frames the modeler reads are
   segmented), and ``env_step_orchard_learned_over_env_step`` its ratio to ``env_step_ms``
-  (target <= 1.6, issue 32).
+  (target <= 1.6, issue 32); the two envs' episodes are taken in turn, seed by seed, so that
+  the ratio does not follow the machine's speed from one minute to the next.
 * ``env_steps_per_s_mix``: the training mode with the fixed action mix of
   :mod:`bench.action_mix` (one rotation every 10 steps) on ``MIX_SEEDS``
   (``train_over_env_fast_mix_seeds``; ``train_over_env_fast`` compares the training rate with
@@ -77,53 +78,87 @@ def one_core():
             os.sched_setaffinity(0, affinity)
 
 
+class _EpisodeTimer:
+    """Whole episodes of one env with the no-rotation baseline, and their per-step timings.
+
+    Args:
+        tracker: "lk" or "oracle".
+        mix: Play the fixed action mix (:class:`bench.action_mix.FixedActionMix`).
+        **kwargs: More ``gymnasium.make`` keywords.
+    """
+
+    def __init__(self, tracker: str, mix: bool = False, **kwargs: object) -> None:
+        env = gymnasium.make(branch_gym.ENV_ID, tracker=tracker, info_timings=True, **kwargs)
+        self.env = FixedActionMix(env) if mix else env
+        self.agent = NoRotationAgent()
+        self.steps, self.elapsed_s = 0, 0.0
+        self.overhead_ms: list[float] = []  # per step: scoring + observation
+        self.step_ms: list[float] = []
+        self.iteration_ms: list[float] = []  # per step: its modeler iterations
+        self.floor_ms: list[float] = []  # per step: its renders + its modeler iterations
+
+    def episode(self, seed: int) -> None:
+        """Play the episode of ``seed`` and keep its timings."""
+        start = time.perf_counter()
+        obs, _ = self.env.reset(seed=seed)
+        done = False
+        while not done:
+            action, _ = self.agent.predict(obs)
+            obs, _, terminated, truncated, info = self.env.step(action)
+            timings = info["timings_ms"]
+            self.overhead_ms.append(timings["metrics_ms"] + timings["observation_ms"])
+            self.step_ms.append(timings["env_step_ms"])
+            self.iteration_ms.append(timings.get("modeler_total_ms", np.nan))
+            self.floor_ms.append(timings["render_ms"] + self.iteration_ms[-1])
+            self.steps, done = self.steps + 1, terminated or truncated
+        self.elapsed_s += time.perf_counter() - start
+
+    def clear(self) -> None:
+        """Forget the timings so far (after a warm-up episode)."""
+        self.steps, self.elapsed_s = 0, 0.0
+        for times in (self.overhead_ms, self.step_ms, self.iteration_ms, self.floor_ms):
+            times.clear()
+
+    def summary(self) -> dict[str, float]:
+        """``steps_per_s``, ``overhead_ms`` (scoring + observation), ``step_ms`` (env step),
+        ``iteration_ms`` (the modeler's iterations of a step) and ``floor_ms`` (the renders and
+        iterations of a step, timed within it; steps without an iteration left out), medians."""
+        self.env.close()
+        return {
+            "steps_per_s": self.steps / self.elapsed_s,
+            "overhead_ms": float(np.median(self.overhead_ms)),
+            "step_ms": float(np.median(self.step_ms)),
+            "iteration_ms": float(np.nanmedian(self.iteration_ms)),
+            "floor_ms": float(np.nanmedian(self.floor_ms)),
+        }
+
+
 def _episodes(
     tracker: str, mix: bool = False, seeds: tuple[int, ...] = SEEDS, **kwargs: object
 ) -> dict[str, float]:
-    """Whole episodes of ``seeds``: steps per second and per-step medians (ms).
+    """Whole episodes of ``seeds`` after a warm-up one: :meth:`_EpisodeTimer.summary`."""
+    timer = _EpisodeTimer(tracker, mix, **kwargs)
+    timer.episode(WARMUP_SEED)
+    timer.clear()
+    for seed in seeds:
+        timer.episode(seed)
+    return timer.summary()
 
-    Returns:
-        ``steps_per_s``, ``overhead_ms`` (scoring + observation), ``step_ms`` (env step),
-        ``iteration_ms`` (the modeler's iterations of a step) and ``floor_ms`` (the renders and
-        iterations of a step, timed within it; steps without an iteration left out).
+
+def _interleaved(*configs: dict[str, object]) -> list[dict[str, float]]:
+    """:func:`_episodes` of several envs, their episodes taken in turn, seed by seed.
+
+    A ratio of two envs' step costs then shares the machine's moment: run one after the other,
+    minutes apart, the same code's ratio moved by ~10 % with the machine's speed (measured).
     """
-    env = gymnasium.make(branch_gym.ENV_ID, tracker=tracker, info_timings=True, **kwargs)
-    if mix:
-        env = FixedActionMix(env)
-    agent = NoRotationAgent()
-    overhead_ms: list[float] = []
-    step_ms: list[float] = []
-    iteration_ms: list[float] = []
-    floor_ms: list[float] = []  # per step: its renders + its modeler iterations
-
-    def episode(seed: int) -> int:
-        obs, _ = env.reset(seed=seed)
-        steps, done = 0, False
-        while not done:
-            action, _ = agent.predict(obs)
-            obs, _, terminated, truncated, info = env.step(action)
-            timings = info["timings_ms"]
-            overhead_ms.append(timings["metrics_ms"] + timings["observation_ms"])
-            step_ms.append(timings["env_step_ms"])
-            iteration_ms.append(timings.get("modeler_total_ms", np.nan))
-            floor_ms.append(timings["render_ms"] + iteration_ms[-1])
-            steps, done = steps + 1, terminated or truncated
-        return steps
-
-    episode(WARMUP_SEED)
-    for times in (overhead_ms, step_ms, iteration_ms, floor_ms):
-        times.clear()
-    start = time.perf_counter()
-    steps = sum(episode(seed) for seed in seeds)
-    elapsed = time.perf_counter() - start
-    env.close()
-    return {
-        "steps_per_s": steps / elapsed,
-        "overhead_ms": float(np.median(overhead_ms)),
-        "step_ms": float(np.median(step_ms)),
-        "iteration_ms": float(np.nanmedian(iteration_ms)),
-        "floor_ms": float(np.nanmedian(floor_ms)),
-    }
+    timers = [_EpisodeTimer(**config) for config in configs]
+    for timer in timers:
+        timer.episode(WARMUP_SEED)
+        timer.clear()
+    for seed in SEEDS:
+        for timer in timers:
+            timer.episode(seed)
+    return [timer.summary() for timer in timers]
 
 
 def _floor_figures() -> tuple[float, float]:
@@ -142,11 +177,12 @@ def _floor_figures() -> tuple[float, float]:
 def run() -> dict[str, float]:
     with one_core():
         render_ms, iteration_ms = _floor_figures()
-        lk = _episodes("lk")
+        lk, orchard = _interleaved(
+            {"tracker": "lk"}, {"tracker": "lk", "world": "orchard", "segmenter": "learned"}
+        )
         oracle = _episodes("oracle")
         fast = _episodes("oracle", render_tracking_frames=False)
         mix = _episodes("oracle", mix=True, seeds=MIX_SEEDS, render_tracking_frames=False)
-        orchard = _episodes("lk", world="orchard", segmenter="learned")
     floor_ms = TRACKING_FRAMES * render_ms + iteration_ms
     floor_fast_ms = render_ms + fast["iteration_ms"]
     return {

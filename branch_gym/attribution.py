@@ -151,8 +151,11 @@ class BranchVisibility:
 
 def _secondary_pixel_counts(labels: np.ndarray, n_secondaries: int) -> np.ndarray:
     """(G,) pixels of each secondary label among ``labels`` (any shape)."""
-    secondary = labels[labels >= FIRST_SECONDARY_LABEL] - FIRST_SECONDARY_LABEL
-    return np.bincount(secondary, minlength=n_secondaries)[:n_secondaries]
+    # Only the secondaries' own labels: the orchard's row and background labels lie above them,
+    # and counting those too made this ~8x slower there.
+    offset = labels.reshape(-1) - FIRST_SECONDARY_LABEL
+    secondary = offset[(offset >= 0) & (offset < n_secondaries)]
+    return np.bincount(secondary, minlength=n_secondaries)
 
 
 def branch_rows(

@@ -16,6 +16,7 @@ from branch_gym.attribution import (
 )
 from branch_gym.env.scan_env import BranchScanEnv
 from branch_gym.scan import ScanConfig, ScanSession
+from branch_gym.sim.scene.labels import FIRST_SECONDARY_LABEL
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 from recon.metrics import evaluate
 from recon.model import TreeModel
@@ -132,3 +133,17 @@ def test_a_branch_covering_the_primary_counts_only_its_pixels_outside_the_silhou
         tree, evaluate(TreeModel(None, []), tree, scanned_top_z_m=SCAN_TOP_M), visibility
     )
     assert rows[0]["miss"] == MISS_NEVER_SEEN
+
+
+def test_only_the_secondaries_own_labels_are_counted() -> None:
+    """The orchard's row, ground and sky labels (above or below the secondaries' range) add
+    nothing to a secondary's count."""
+    labels = np.full((6, 8), FIRST_SECONDARY_LABEL + 50, np.int32)  # a row tree's label
+    labels[0, :3] = FIRST_SECONDARY_LABEL  # secondary 0: 3 pixels
+    labels[1, :2] = FIRST_SECONDARY_LABEL + 1  # secondary 1: 2 pixels
+    labels[2, :] = FIRST_SECONDARY_LABEL - 1  # the primary
+    labels[3, :] = -1
+    visibility = BranchVisibility()
+    visibility.reset(2, np.eye(4))
+    visibility.observe(labels, np.eye(4))
+    np.testing.assert_array_equal(visibility.peak_pixels, [3, 2])

@@ -18,6 +18,7 @@ from branch_gym.sim.scene.labels import (
     WIRE_LABEL,
     is_scanned_tree,
 )
+from branch_gym.sim.scene.orchard_background import srgb_to_linear
 from branch_gym.sim.scene.orchard_row import OrchardRowConfig
 from branch_gym.sim.scene.orchard_scene import OrchardConfig
 from branch_gym.sim.segmentation import NoisySegmenter, NoisySegmenterConfig
@@ -185,3 +186,17 @@ def test_every_orchard_config_field_rejects_a_bad_value(name: str) -> None:
 def test_world_config_rejects_a_bad_orchard() -> None:
     with pytest.raises(ValueError, match=r"WorldConfig\.orchard"):
         WorldConfig(orchard="yes")
+
+
+def test_srgb_to_linear_follows_the_srgb_curve_and_refuses_other_dtypes() -> None:
+    """sRGB 8-bit -> linear: black 0, white 1, the curve's mid point, and the same values for
+    a colour image (table lookup by OpenCV) as for any other shape."""
+    image = np.arange(256, dtype=np.uint8).reshape(16, 16)
+    colour = np.stack([image, image[::-1], image.T], axis=2)
+    linear = srgb_to_linear(colour)
+    assert linear.dtype == np.float32 and linear.shape == colour.shape
+    assert linear[0, 0, 0] == 0.0 and linear[-1, -1, 0] == 1.0
+    assert linear[7, 15, 0] == pytest.approx(((127 / 255 + 0.055) / 1.055) ** 2.4, rel=1e-6)
+    np.testing.assert_array_equal(linear[..., 1], srgb_to_linear(image[::-1]))
+    with pytest.raises(ValueError, match="uint8"):
+        srgb_to_linear(colour.astype(np.float32))

