@@ -286,3 +286,22 @@ def test_the_cli_layers_defaults_the_recipe_and_the_options(tmp_path):
         config_from_args(
             build_parser().parse_args(["--config", str(tmp_path / "bad.json"), "--out", "x"])
         )
+
+
+def test_a_kept_run_resumes_after_its_last_student_with_the_earlier_ones_pruned(tmp_path):
+    """Every round's labels and the last student are enough to resume; a round whose student
+    was not saved is played again; a kept student without the labels before it is refused."""
+    from branch_gym.training.imitation.data import model_path, round_path
+    from branch_gym.training.imitation.rounds import finished_rounds
+
+    for k in range(3):
+        round_path(tmp_path, k).write_bytes(b"labels")
+    assert finished_rounds(tmp_path, 8) == 0  # no student saved yet
+    model_path(tmp_path, 1).write_bytes(b"student")
+    assert finished_rounds(tmp_path, 8) == 2  # round 2 was labelled, its fit interrupted
+    model_path(tmp_path, 2).write_bytes(b"student")
+    assert finished_rounds(tmp_path, 8) == 3
+    assert finished_rounds(tmp_path, 2) == 2  # a run of 2 rounds is done
+    round_path(tmp_path, 1).unlink()
+    with pytest.raises(ValueError, match="round_1.npz"):
+        finished_rounds(tmp_path, 8)

@@ -2,10 +2,11 @@
 
 Every round is saved in the run folder (its labels ``round_K.npz``, the student after it
 ``model_round_K.zip``, a line of ``rounds.jsonl``), so an interrupted run resumes at the next
-round; the cost-to-go branches of the round under way are kept as they finish
-(``round_K.branches.jsonl``) and not run again. Episodes and branches run in ``workers``
-processes on the run's training trees (:func:`branch_gym.training.seeds.train_seed_range`,
-after the first ``tree_offset`` of them).
+round (:func:`finished_rounds`: every round's labels and the last student are enough, the
+earlier students may be pruned); the cost-to-go branches of the round under way are kept as
+they finish (``round_K.branches.jsonl``) and not run again. Episodes and branches run in
+``workers`` processes on the run's training trees
+(:func:`branch_gym.training.seeds.train_seed_range`, after the first ``tree_offset`` of them).
 """
 
 from __future__ import annotations
@@ -85,7 +86,8 @@ def imitate(
 
     Raises:
         FileExistsError: a new run in a folder that already holds one.
-        ValueError: resuming with another configuration; a corrupt round file (named).
+        ValueError: resuming with another configuration; a corrupt or missing round file
+            (named).
     """
     pin_worker_threads()  # the fits run here while the workers label: one thread each
     out = Path(out)
@@ -102,11 +104,8 @@ def imitate(
             )
     out.mkdir(parents=True, exist_ok=True)
     config_path.write_text(json.dumps(config.to_dict(), indent=2))
-    rounds: list[RoundData] = []
-    done = 0
-    while model_path(out, done).exists() and done < config.rounds:
-        rounds.append(RoundData.load(round_path(out, done)))
-        done += 1
+    done = finished_rounds(out, config.rounds)
+    rounds = [RoundData.load(round_path(out, k)) for k in range(done)]
     spaces_env = gym.make(config.train.env_id, **config.train.env_kwargs())
     model = load_model(model_path(out, done - 1)) if done else new_student(config, spaces_env)
     bounds = value_bounds_s(spaces_env)
@@ -163,6 +162,29 @@ def imitate(
     final = out / FINAL_MODEL
     model.save(final)
     return final
+
+
+def finished_rounds(out: Path, most: int) -> int:
+    """How many rounds of the run in ``out`` are finished (at most ``most``).
+
+    Rounds 0 .. d - 1 are finished when all their labels are kept and the student fitted after
+    round d - 1 is saved: the next round needs only that student, so a kept run may prune the
+    students before it. A round whose labels were saved but whose student was not (interrupted
+    while fitting) is played again (its cost-to-go branches are not run again).
+    """
+    labelled = 0
+    while labelled < most and round_path(out, labelled).exists():
+        labelled += 1
+    done = labelled
+    while done and not model_path(out, done - 1).exists():
+        done -= 1
+    later = [k for k in range(done, most) if model_path(out, k).exists()]
+    if later:
+        raise ValueError(
+            f"{out} keeps the student of round {later[-1]} but not the labels of round "
+            f"{labelled} ({round_path(out, labelled).name}): a kept run needs every round's labels"
+        )
+    return done
 
 
 def _price_states(
