@@ -303,5 +303,5 @@ def test_a_kept_run_resumes_after_its_last_student_with_the_earlier_ones_pruned(
     assert finished_rounds(tmp_path, 8) == 3
     assert finished_rounds(tmp_path, 2) == 2  # a run of 2 rounds is done
     round_path(tmp_path, 1).unlink()
-    with pytest.raises(ValueError, match="round_1.npz"):
+    with pytest.raises(ValueError, match=r"round_1\.npz"):
         finished_rounds(tmp_path, 8)
