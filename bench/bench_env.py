@@ -137,15 +137,12 @@ def _episodes(
     tracker: str, mix: bool = False, seeds: tuple[int, ...] = SEEDS, **kwargs: object
 ) -> dict[str, float]:
     """Whole episodes of ``seeds`` after a warm-up one: :meth:`_EpisodeTimer.summary`."""
-    timer = _EpisodeTimer(tracker, mix, **kwargs)
-    timer.episode(WARMUP_SEED)
-    timer.clear()
-    for seed in seeds:
-        timer.episode(seed)
-    return timer.summary()
+    return _interleaved({"tracker": tracker, "mix": mix, **kwargs}, seeds=seeds)[0]
 
 
-def _interleaved(*configs: dict[str, object]) -> list[dict[str, float]]:
+def _interleaved(
+    *configs: dict[str, object], seeds: tuple[int, ...] = SEEDS
+) -> list[dict[str, float]]:
     """:func:`_episodes` of several envs, their episodes taken in turn, seed by seed.
 
     A ratio of two envs' step costs then shares the machine's moment: run one after the other,
@@ -155,7 +152,7 @@ def _interleaved(*configs: dict[str, object]) -> list[dict[str, float]]:
     for timer in timers:
         timer.episode(WARMUP_SEED)
         timer.clear()
-    for seed in SEEDS:
+    for seed in seeds:
         for timer in timers:
             timer.episode(seed)
     return [timer.summary() for timer in timers]
