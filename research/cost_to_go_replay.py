@@ -24,7 +24,7 @@ import numpy as np
 import branch_gym  # noqa: F401  (registers the env ids)
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG, VECTOR_KEY, VectorField
 from branch_gym.training.imitation.config import CONFIG_FILE, ImitationConfig
-from branch_gym.training.imitation.cost_to_go import HoldAgent
+from branch_gym.training.imitation.cost_to_go import BranchTask, HoldAgent, play_branch
 from branch_gym.training.imitation.data import RoundData, episode_slices, round_path
 
 LOSS_MARGIN = 0.5  # our choice: half a found branch, as research/cost_to_go_labels.py
@@ -56,21 +56,10 @@ def losing_branches(run: Path, config: ImitationConfig) -> list[dict]:
 
 
 def play(env: gym.Env, agent: HoldAgent, case: dict, action: int) -> dict:
-    """One branch to its end: return, failure, matched, spurious and duplicate branches, scan
-    time."""
-    observation, _ = env.reset(seed=case["seed"])
-    total = 0.0
-    for prefix_action in case["prefix"]:
-        observation, reward, *_ = env.step(prefix_action)
-        total += float(reward)
-    if not np.array_equal(observation[VECTOR_KEY], case["expected"]):
-        raise RuntimeError(f"tree {case['seed']}: the replay diverged before step {case['step']}")
-    observation, reward, terminated, truncated, info = env.step(action)
-    total += float(reward)
-    while not (terminated or truncated):
-        action, _ = agent.predict(observation, episode_start=False, deterministic=True)
-        observation, reward, terminated, truncated, info = env.step(action)
-        total += float(reward)
+    """One branch to its end (:func:`play_branch`): return, failure, matched, spurious and
+    duplicate branches, scan time."""
+    task = BranchTask(case["seed"], tuple(case["prefix"]), case["expected"], action, None)
+    total, info = play_branch(env, task, agent)
     metrics = info.get("final_metrics", info["metrics"])
     return {
         "return": total,

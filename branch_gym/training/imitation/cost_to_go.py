@@ -115,12 +115,21 @@ def distinct_actions(env: Any, current_angle_deg: float) -> list[list[int]]:
 
 
 def run_branch(env: Any, task: BranchTask, rollout: Any) -> float:
-    """The return of one branch (:class:`BranchTask`) in ``env``.
+    """The return of one branch (:class:`BranchTask`) in ``env``: :func:`play_branch`'s."""
+    return play_branch(env, task, rollout)[0]
+
+
+def play_branch(env: Any, task: BranchTask, rollout: Any) -> tuple[float, dict[str, Any]]:
+    """Play one branch (:class:`BranchTask`) in ``env`` to the episode's end.
 
     Args:
         env: The run's env (the same settings as the episode's).
         task: The branch.
         rollout: The policy that plays after the branch's action (SB3's ``predict``).
+
+    Returns:
+        The branch's return and the env's ``info`` of the last step (``failure``,
+        ``final_metrics``, ``scan_time_s``, ...).
 
     Raises:
         RuntimeError: the replay did not reproduce the recorded observation, or the episode
@@ -138,13 +147,13 @@ def run_branch(env: Any, task: BranchTask, rollout: Any) -> float:
             f"replay of tree {task.tree_seed} diverged from the recorded episode at step "
             f"{len(task.prefix_actions)}"
         )
-    observation, reward, terminated, truncated, _ = env.step(int(task.action))
+    observation, reward, terminated, truncated, info = env.step(int(task.action))
     total += float(reward)
     while not (terminated or truncated):
         action, _ = rollout.predict(observation, episode_start=False, deterministic=True)
-        observation, reward, terminated, truncated, _ = env.step(action)
+        observation, reward, terminated, truncated, info = env.step(action)
         total += float(reward)
-    return total
+    return total, info
 
 
 def action_values(groups: list[list[int]], returns: list[float], n_actions: int) -> np.ndarray:
