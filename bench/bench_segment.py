@@ -52,7 +52,7 @@ def bench_segment(spec: str = "learned", runtime: str = "auto") -> dict[str, flo
     frames = [
         (previous, rgb)
         for seed in SEEDS
-        for previous, rgb, _ in render_eval_frames("paper", seed, config)
+        for previous, rgb, *_ in render_eval_frames("paper", seed, config)
     ]
     for _ in range(WARMUP_CALLS):
         segmenter.segment(frames[0][1], frames[0][0])

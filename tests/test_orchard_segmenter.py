@@ -18,6 +18,7 @@ from branch_gym.segmenter_training.orchard_augment import (
     OrchardPairBatches,
     add_far_copy,
     corrupt_exact_flow,
+    overcast_backlight,
     training_frame,
 )
 from branch_gym.segmenter_training.orchard_pairs import (
@@ -25,6 +26,7 @@ from branch_gym.segmenter_training.orchard_pairs import (
     generate_orchard_shard,
 )
 from branch_gym.segmenter_training.train import dataclass_from_dict, segmentation_loss
+from branch_gym.sim.scene.labels import SKY_LABEL, details_label, own_uprights_label
 from recon.segmentation import LearnedSegmenter, SegmenterNet, SegmenterNetConfig
 from recon.segmentation.flow import flow_to_picture_fast
 from recon.segmentation.inputs import make_picture_input
@@ -179,6 +181,65 @@ def test_the_target_tells_side_branches_apart_and_the_loss_weighs_them():
         TrainConfig(side_branch_weight=0.0)
 
 
+def test_details_as_background_leaves_spurs_out_of_the_target_and_keeps_uprights():
+    """Real hand masks draw the trunk, uprights and side branches, not spurs or buds: with
+    ``details_as_background`` the tree's details label (2 + n secondaries) is background, a UFO
+    tree's other uprights (3 + n) stay the scanned tree."""
+    pair = np.stack(_frames())
+    flow = np.zeros((H, W, 2), np.float32)
+    labels = np.zeros((H, W), np.uint16)
+    labels[:, 10:16] = 1  # the primary
+    labels[20:23, 16:40] = 2  # its one side branch
+    labels[30:33, 16:20] = details_label(1)  # a spur
+    labels[:, 50:54] = own_uprights_label(1)  # another upright of the same tree
+    config = OrchardAugmentConfig(flip_probability=0.0, distractor_probability=0.0)
+    rng = np.random.default_rng(0)
+    _, kept = training_frame(pair, flow, labels, rng, config, (H, W), details_label(1))
+    assert (kept[30:33, 16:20] == 2).all()  # default: the spur is the tree, as before
+    background = replace(config, details_as_background=True)
+    _, y = training_frame(pair, flow, labels, rng, background, (H, W), details_label(1))
+    assert not y[30:33, 16:20].any()
+    assert (y[:, 10:16] == 1).all() and (y[20:23, 16:40] == 2).all() and (y[:, 50:54] > 0).all()
+    with pytest.raises(ValueError, match="details_label"):
+        training_frame(pair, flow, labels, rng, background, (H, W))
+    with pytest.raises(ValueError, match="n_secondaries"):
+        OrchardPairBatches(
+            {"rgb": pair[None], "flow": flow[None], "labels": labels[None]},
+            background, steps=1, batch_size=1, crop_hw=(32, 48), seed=0,
+        )  # fmt: skip
+    batches = OrchardPairBatches(
+        {"rgb": pair[None], "flow": flow[None], "labels": labels[None],
+         "n_secondaries": np.array([1], np.int16)},
+        background, steps=1, batch_size=1, crop_hw=(H, W), seed=0,
+    )  # fmt: skip
+    target = batches[0][1][0, 0].numpy()
+    assert target.sum() > 0 and (target > 0).sum() == ((y > 0).sum())
+
+
+def test_overcast_backlight_replaces_the_sky_in_both_frames_and_keeps_the_moved_tree():
+    """A bar (the tree) moves 6 px right over a sky: the new sky covers both frames' sky, the
+    bar stays where each frame shows it (the earlier frame's bar is not painted over), and the
+    bar is darkened by the backlight."""
+    sky_rgb, bar_rgb = (200, 210, 230), (120, 90, 60)
+    pair = np.empty((2, H, W, 3), np.uint8)
+    pair[:] = sky_rgb
+    pair[0, :, 20:26], pair[1, :, 26:32] = bar_rgb, bar_rgb
+    labels = np.full((H, W), SKY_LABEL, np.uint16)
+    labels[:, 26:32] = 1
+    flow = np.zeros((H, W, 2), np.float32)
+    flow[:, 26:32, 0] = -6.0  # current -> earlier: the bar was 6 px to the left
+    config = OrchardAugmentConfig(overcast_probability=1.0, backlight_gain_range=(0.5, 0.5))
+    out = overcast_backlight(pair, flow, labels, np.random.default_rng(0), config)
+    np.testing.assert_array_equal(out[0][:, 20:26], np.full((H, 6, 3), (60, 45, 30)))
+    np.testing.assert_array_equal(out[1][:, 26:32], np.full((H, 6, 3), (60, 45, 30)))
+    for frame, bar in ((out[0], slice(20, 26)), (out[1], slice(26, 32))):
+        sky = np.ones(W, bool)
+        sky[bar] = False
+        assert not np.any(np.all(frame[:, sky] == sky_rgb, axis=-1))  # the old sky is gone
+    # The sky is the same in both frames where both show it: it stays still, like the rendered one.
+    np.testing.assert_array_equal(out[0][:, 40:], out[1][:, 40:])
+
+
 def test_a_far_copy_of_the_tree_looks_like_it_and_moves_like_the_background():
     rng = np.random.default_rng(3)
     pair = np.stack(_frames())
@@ -213,6 +274,14 @@ def test_orchard_pairs_config_rejects_bad_values_by_name():
         FlowAugmentConfig(dis_presets=("slow",), dis_weights=(1.0,))
     with pytest.raises(ValueError, match="no_flow_probability"):
         FlowAugmentConfig(no_flow_probability=1.5)
+    with pytest.raises(ValueError, match="pitch_range_deg"):
+        OrchardPairsConfig(pitch_range_deg=(20.0, 0.0))
+    with pytest.raises(ValueError, match="overcast_probability"):
+        OrchardAugmentConfig(overcast_probability=-0.1)
+    with pytest.raises(ValueError, match="overcast_brightness_range"):
+        OrchardAugmentConfig(overcast_brightness_range=(50.0, 300.0))
+    with pytest.raises(ValueError, match="backlight_gain_range"):
+        OrchardAugmentConfig(backlight_gain_range=(0.8, 0.2))
 
 
 def test_train_config_round_trips_through_its_dict():

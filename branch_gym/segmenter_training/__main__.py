@@ -27,7 +27,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from branch_gym.segmenter_training.config import FlowAugmentConfig, GenerateConfig, TrainConfig
+from branch_gym.segmenter_training.config import (
+    FlowAugmentConfig,
+    GenerateConfig,
+    OrchardAugmentConfig,
+    TrainConfig,
+)
 from branch_gym.segmenter_training.evaluate import EvaluateConfig, evaluate_segmenters
 from branch_gym.segmenter_training.generate import (
     EVAL_PRESETS,
@@ -76,6 +81,7 @@ def _generate_orchard(args: argparse.Namespace) -> None:
         pairs_per_tree=args.pairs_per_tree,
         world=args.world,
         baseline_range_m=tuple(args.baseline_range_m),
+        pitch_range_deg=tuple(args.pitch_range_deg),
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -108,7 +114,10 @@ def _train(args: argparse.Namespace) -> None:
     config = replace(
         base, net=net, steps=args.steps, batch_size=args.batch_size,
         learning_rate=args.learning_rate, side_branch_weight=args.side_branch_weight,
-        orchard=replace(base.orchard, flow=flow),
+        orchard=replace(
+            base.orchard, flow=flow, details_as_background=args.details_as_background,
+            overcast_probability=args.overcast_probability,
+        ),
     )  # fmt: skip
     train(
         config,
@@ -226,6 +235,10 @@ def main(argv: list[str] | None = None) -> int:
         default=OrchardPairsConfig.baseline_range_m, help="camera motion between a pair's frames",
     )  # fmt: skip
     gor.add_argument(
+        "--pitch-range-deg", nargs=2, type=float, metavar=("LOW", "HIGH"),
+        default=OrchardPairsConfig.pitch_range_deg, help="camera tilt up before the pairs",
+    )  # fmt: skip
+    gor.add_argument(
         "--evaluation", action="store_true", help="trees of seeds 0..trees-1 (held out)"
     )
 
@@ -247,6 +260,15 @@ def main(argv: list[str] | None = None) -> int:
         "--no-flow-probability", type=float,
         default=FlowAugmentConfig.no_flow_probability,
         help="share of orchard training frames seen without a flow picture (colour alone)",
+    )  # fmt: skip
+    tr.add_argument(
+        "--details-as-background", action="store_true",
+        help="the target leaves out the tree's spurs, stubs and buds, as real hand masks do",
+    )  # fmt: skip
+    tr.add_argument(
+        "--overcast-probability", type=float,
+        default=OrchardAugmentConfig.overcast_probability,
+        help="share of orchard training pairs under an overcast sky, the tree backlit",
     )  # fmt: skip
     tr.add_argument("--flow", action="store_true", help="RGB + optical flow input (ablation)")
     tr.add_argument(

@@ -201,6 +201,19 @@ class OrchardAugmentConfig:
         flip_probability: Horizontal flip (the flow's u flips with it).
         distractor_probability: Paste a copy of the scanned tree behind it that moves like the
             background (a negative only parallax tells apart: the paper's cue; our addition).
+        overcast_probability: Give both frames another sky, an overcast one of any brightness
+            (a vertical gradient with soft clouds), and light everything else from behind it,
+            darker by ``backlight_gain_range``: the real close-ups look up at silhouettes
+            against grey skies (``shared/data/real_dev``; reference.md, "Real close-up
+            frames"), while the orchard world lights its bark from the front (our addition).
+        overcast_brightness_range: The new sky's mean level (0-255).
+        backlight_gain_range: Gain of every pixel that is not sky.
+        details_as_background: The target leaves out the scanned tree's spurs, stubs and buds
+            (``TreeGT.details``; a UFO tree's other uprights stay in). Real hand masks draw the
+            trunk, uprights and side branches but not these (``shared/data/real_dev``), and the
+            2D stage takes a spur in the mask for a short side branch. False: they are the
+            scanned tree, as before (the shipped weights until 2026-12-04 were trained so).
+            Needs shards that store ``n_secondaries``.
     """
 
     camera: AugmentConfig = field(default_factory=AugmentConfig)
@@ -209,6 +222,24 @@ class OrchardAugmentConfig:
     saturation_range: tuple[float, float] = (0.5, 1.3)
     flip_probability: float = 0.5
     distractor_probability: float = 0.3
+    overcast_probability: float = 0.0
+    overcast_brightness_range: tuple[float, float] = (50.0, 230.0)
+    backlight_gain_range: tuple[float, float] = (0.2, 0.8)
+    details_as_background: bool = False
+
+    def __post_init__(self) -> None:
+        for name in ("flip_probability", "distractor_probability", "overcast_probability"):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f"OrchardAugmentConfig.{name} must be in [0, 1], got {value!r}")
+        for name, high in (("overcast_brightness_range", 255.0), ("backlight_gain_range", None)):
+            low_value, high_value = getattr(self, name)
+            if not 0.0 <= low_value <= high_value or (high is not None and high_value > high):
+                bound = f" within [0, {high:g}]" if high is not None else " with low >= 0"
+                raise ValueError(
+                    f"OrchardAugmentConfig.{name} must be a (low, high) range{bound}, "
+                    f"got {getattr(self, name)!r}"
+                )
 
     def to_dict(self) -> dict:
         """Plain JSON-able values."""

@@ -3,8 +3,10 @@
 A pair of the orchard world (:mod:`branch_gym.segmenter_training.orchard_pairs`) becomes one
 training frame:
 
-1. both frames get another camera's look (:func:`~branch_gym.segmenter_training.augment.
-   camera_effects`: exposure, white balance, blur, noise, JPEG) and a colour shift;
+1. both frames get, sometimes, an overcast sky with the rest lit from behind
+   (:func:`overcast_backlight`), then another camera's look
+   (:func:`~branch_gym.segmenter_training.augment.camera_effects`: exposure, white balance,
+   blur, noise, JPEG) and a colour shift;
 2. the flow of the current frame is either the renderer's exact flow, corrupted the way
    learned flow networks err (smoothed across edges, predicted at a quarter resolution and
    upsampled, smooth noise, a global drift of the background), or OpenCV's DIS flow computed
@@ -32,9 +34,13 @@ import torch
 from branch_gym.segmenter_training.augment import camera_effects, smooth_noise
 from branch_gym.segmenter_training.config import FlowAugmentConfig, OrchardAugmentConfig
 from branch_gym.segmenter_training.generate import branch_target, labels_to_classes
+from branch_gym.sim.scene.labels import SKY_LABEL, details_label
 from recon.segmentation.flow import DenseFlowConfig, compute_flow
 from recon.segmentation.flow import flow_to_picture_fast as flow_to_picture
 from recon.segmentation.inputs import make_picture_input
+
+_SKY_WINDOW_PX = 41  # window of the nearby sky's colour (our choice: ~the widest trunk)
+_SKY_COLOUR_TOLERANCE = 25.0  # uint8 levels from it that still read as sky (our choice)
 
 
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
@@ -128,6 +134,85 @@ def add_far_copy(
     return pair, flow
 
 
+def earlier_mask(mask: np.ndarray, exact_flow: np.ndarray) -> np.ndarray:
+    """Where a current frame's (H, W) bool mask lies in the earlier frame of its pair.
+
+    Each pixel is carried along its current-to-earlier flow (rounded) and the holes of the
+    splat closed by one pixel; pixels the current frame does not see stay False.
+    """
+    h, w = mask.shape
+    ys, xs = np.nonzero(mask)
+    u = np.rint(xs + exact_flow[ys, xs, 0]).astype(np.int64)
+    v = np.rint(ys + exact_flow[ys, xs, 1]).astype(np.int64)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    out = np.zeros((h, w), np.uint8)
+    out[v[inside], u[inside]] = 1
+    return cv2.morphologyEx(out, cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+
+
+def _earlier_sky(rgb_pair: np.ndarray, exact_flow: np.ndarray, sky_now: np.ndarray) -> np.ndarray:
+    """(H, W) bool sky of the earlier frame of a pair, from the current frame's sky.
+
+    Where the current frame's other pixels flow to is not sky (the near tree hides the sky);
+    of the rest, where the current sky flows to is sky, and so are the pixels the current
+    frame does not show (behind the moved tree) whose colour is the nearby sky's.
+    """
+    not_sky = earlier_mask(~sky_now, exact_flow)
+    carried_sky = earlier_mask(sky_now, exact_flow) & ~not_sky
+    unseen = ~carried_sky & ~not_sky
+    if not unseen.any() or not sky_now.any():
+        return carried_sky
+    # The nearby sky's colour (normalised box filter of the current sky) at every pixel.
+    window = (_SKY_WINDOW_PX, _SKY_WINDOW_PX)
+    weight = cv2.boxFilter(sky_now.astype(np.float32), -1, window)
+    total = cv2.boxFilter(rgb_pair[1].astype(np.float32) * sky_now[..., None], -1, window)
+    colour = total / np.maximum(weight, 1e-6)[..., None]
+    close = np.abs(rgb_pair[0].astype(np.float32) - colour).max(axis=-1) < _SKY_COLOUR_TOLERANCE
+    return carried_sky | (unseen & close & (weight > 0.05))
+
+
+def overcast_backlight(
+    rgb_pair: np.ndarray,
+    exact_flow: np.ndarray,
+    labels: np.ndarray,
+    rng: np.random.Generator,
+    config: OrchardAugmentConfig,
+) -> np.ndarray:
+    """Both frames under an overcast sky, everything else lit from behind (a silhouette).
+
+    The sky (``SKY_LABEL`` of the current frame; in the earlier frame, :func:`_earlier_sky`)
+    becomes one overcast sky, still in both frames like the
+    rendered one: a vertical gradient around a drawn brightness with soft clouds and a faint
+    tint. Every other pixel is darkened by one drawn gain.
+
+    Args:
+        rgb_pair: (2, H, W, 3) uint8 earlier and current frame.
+        exact_flow: (H, W, 2) current-to-earlier flow (pixels).
+        labels: (H, W) instance labels of the current frame.
+        rng: Draws the sky and the gain.
+        config: The ranges.
+
+    Returns:
+        (2, H, W, 3) uint8 frames.
+    """
+    h, w = labels.shape
+    sky_now = labels == SKY_LABEL
+    skies = (_earlier_sky(rgb_pair, exact_flow, sky_now), sky_now)
+    level = _uniform(rng, config.overcast_brightness_range)
+    rows = np.linspace(-1.0, 1.0, h, dtype=np.float32)[:, None]
+    gradient = level * (1.0 + rng.uniform(-0.25, 0.25) * rows)  # lighter up or down
+    clouds = smooth_noise(rng, (h, w), float(rng.uniform(20.0, 80.0))) - 0.5
+    grey = gradient + clouds * rng.uniform(0.0, 0.5) * level
+    tint = 1.0 + rng.uniform(-0.08, 0.08, size=3).astype(np.float32)
+    sky = np.clip(grey[..., None] * tint, 0, 255).astype(np.uint8)
+    gain = _uniform(rng, config.backlight_gain_range)
+    out = np.empty_like(rgb_pair)
+    for k, (frame, is_sky) in enumerate(zip(rgb_pair, skies, strict=True)):
+        lit = np.clip(frame.astype(np.float32) * gain, 0, 255).astype(np.uint8)
+        out[k] = np.where(is_sky[..., None], sky, lit)
+    return out
+
+
 def _turn(flow: np.ndarray, rng: np.random.Generator, config: FlowAugmentConfig) -> np.ndarray:
     """Flow vectors turned by a random angle, mirrored first with ``mirror_probability``."""
     u, v = flow[..., 0], flow[..., 1]
@@ -145,6 +230,7 @@ def training_frame(
     rng: np.random.Generator,
     config: OrchardAugmentConfig,
     crop_hw: tuple[int, int],
+    details_label: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One randomised training frame of an orchard pair (module docstring).
 
@@ -155,6 +241,9 @@ def training_frame(
         rng: Draws everything.
         config: The randomisation.
         crop_hw: Crop (height, width).
+        details_label: The label of the tree's spurs, stubs and buds
+            (:func:`branch_gym.sim.scene.labels.details_label`); needed when
+            ``config.details_as_background``.
 
     Returns:
         ((6, h, w) float32 network input, (h, w) uint8 target: 0 not the scanned tree,
@@ -162,9 +251,15 @@ def training_frame(
         branch_target`)).
     """
     classes = branch_target(labels_to_classes(labels))
+    if config.details_as_background:
+        if details_label is None:
+            raise ValueError("details_as_background needs the pair's details_label")
+        classes[labels == details_label] = 0
     target = classes > 0
     if rng.random() < config.distractor_probability:
         rgb_pair, exact_flow = add_far_copy(rgb_pair, exact_flow, target, rng)
+    if rng.random() < config.overcast_probability:
+        rgb_pair = overcast_backlight(rgb_pair, exact_flow, labels, rng, config)
     frames = camera_effects(rgb_pair, rng, config.camera)
     frames = _recolour(frames, rng, config)
     flow_config = config.flow
@@ -212,8 +307,18 @@ class OrchardPairBatches(torch.utils.data.Dataset):
         crop_hw: tuple[int, int],
         seed: int,
     ) -> None:
+        if config.details_as_background and "n_secondaries" not in data:
+            raise ValueError(
+                "details_as_background needs shards that store n_secondaries: generate them "
+                "again with `python -m branch_gym.segmenter_training generate-orchard`"
+            )
         self.data, self.config, self.steps = data, config, steps
         self.batch_size, self.crop_hw, self.seed = batch_size, crop_hw, seed
+
+    def _details_label(self, index: int) -> int | None:
+        if "n_secondaries" not in self.data:
+            return None
+        return details_label(int(self.data["n_secondaries"][index]))
 
     def __len__(self) -> int:
         return self.steps
@@ -226,7 +331,7 @@ class OrchardPairBatches(torch.utils.data.Dataset):
         for i in indices:
             x, y = training_frame(
                 self.data["rgb"][i], self.data["flow"][i], self.data["labels"][i], rng,
-                self.config, self.crop_hw,
+                self.config, self.crop_hw, self._details_label(i),
             )  # fmt: skip
             inputs.append(x)
             targets.append(y[None].astype(np.float32))

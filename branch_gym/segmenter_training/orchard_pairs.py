@@ -20,6 +20,9 @@ holding, for N pairs:
   (:mod:`branch_gym.sim.scene.labels`); the target is ``1 <= label < 100`` (the scanned tree);
 * ``seeds``: (N,) int64 tree seeds; ``architectures``: (N,) int8 index into
   ``OrchardPairsConfig.architectures``;
+* ``n_secondaries``: (N,) int16 secondaries of the pair's tree, which place the labels of its
+  details and uprights (:func:`branch_gym.sim.scene.labels.details_label`; shards written
+  before it was stored lack it, and a target that needs it says so);
 * ``baseline_m``: (N,) float32 camera translation between the two frames (m).
 
 Tree seeds come from a Generator seeded by the data set seed and the shard index: shard k is
@@ -76,6 +79,9 @@ class OrchardPairsConfig:
         orbit_range_deg: Orbit around the primary before the pairs (the rotation policies'
             views: the paper's 22.5-45 deg and more).
         roll_range_deg: Camera roll before the pairs.
+        pitch_range_deg: Camera tilt up (positive) before the pairs. The scan looks level;
+            real close-ups often look up at the tree against the sky (the horizon low in
+            ``shared/data/real_dev``'s frames; our choice, for data sets that cover them).
         climb_range_m: Climb before each pair (frames along the scan).
         baseline_range_m: Camera translation between the frames of a pair. The paper pairs
             frames >= 7.5 mm apart (FramePairingConfig.min_translation_m) for its learned flow;
@@ -100,6 +106,7 @@ class OrchardPairsConfig:
     start_height_range_m: tuple[float, float] = (0.26, 0.5)
     orbit_range_deg: tuple[float, float] = (-45.0, 45.0)
     roll_range_deg: tuple[float, float] = (-10.0, 10.0)
+    pitch_range_deg: tuple[float, float] = (0.0, 0.0)
     climb_range_m: tuple[float, float] = (0.0, 0.08)
     baseline_range_m: tuple[float, float] = (_PAIRING.min_translation_m, 0.03)
     rotation_range_deg: tuple[float, float] = (0.0, 0.45)
@@ -129,6 +136,7 @@ class OrchardPairsConfig:
             _require_range(self, name, 0.0)
         _require_range(self, "orbit_range_deg")
         _require_range(self, "roll_range_deg")
+        _require_range(self, "pitch_range_deg")
         _require_range(self, "baseline_range_m", 0.0)
         if self.baseline_range_m[0] <= 0.0:
             raise ValueError(
@@ -206,8 +214,9 @@ def render_orchard_pairs(
         rng: Draws the architecture, the camera's start and every motion.
 
     Returns:
-        Lists ``rgb``, ``flow``, ``labels`` (module docstring) and the ``architecture`` index;
-        fewer than ``pairs_per_tree`` pairs when the arm cannot move further.
+        Lists ``rgb``, ``flow``, ``labels`` (module docstring), the ``architecture`` index and
+        the tree's ``n_secondaries``; fewer than ``pairs_per_tree`` pairs when the arm cannot
+        move further.
     """
     weights = np.asarray(config.architecture_weights, float)
     architecture = int(rng.choice(len(config.architectures), p=weights / weights.sum()))
@@ -223,16 +232,25 @@ def render_orchard_pairs(
         "labels": [],
         "baseline_m": [],
         "architecture": architecture,
+        "n_secondaries": 0,
     }
     world = World(world_config)
     try:
         world.reset(tree_seed)
+        out["n_secondaries"] = len(world.tree.secondaries)
         z = world_config.z_target_m
         speed = config.speed_mps
         ok = orbit_camera(world, _uniform(rng, config.orbit_range_deg), speed, z)
         roll = math.radians(_uniform(rng, config.roll_range_deg))
         if ok and roll:
             ok = _move(world, np.array([0, 0, 0, 0, 0, math.copysign(0.5, roll)]), abs(roll) / 0.5)
+        pitch = 0.0
+        if config.pitch_range_deg != (0.0, 0.0):  # drawn only then: older data sets stay
+            pitch = math.radians(_uniform(rng, config.pitch_range_deg))
+        if ok and pitch:  # about the camera's x axis: positive turns the view up
+            ok = _move(
+                world, np.array([0, 0, 0, math.copysign(0.5, pitch), 0, 0]), abs(pitch) / 0.5
+            )
         for _ in range(config.pairs_per_tree):
             climb_s = _uniform(rng, config.climb_range_m) / speed
             if not ok or not _move(world, np.array([0, -speed, 0, 0, 0, 0]), climb_s):
@@ -276,6 +294,7 @@ def generate_orchard_shard(
         "baseline_m": [],
         "seeds": [],
         "arch": [],
+        "n_secondaries": [],
     }
     first_tree = index * config.trees_per_shard
     for tree in range(first_tree, min(config.trees, first_tree + config.trees_per_shard)):
@@ -290,6 +309,7 @@ def generate_orchard_shard(
             parts[key] += pairs[key]
         parts["seeds"] += [tree_seed] * len(pairs["rgb"])
         parts["arch"] += [pairs["architecture"]] * len(pairs["rgb"])
+        parts["n_secondaries"] += [pairs["n_secondaries"]] * len(pairs["rgb"])
     h, w = WorldConfig().camera.height, WorldConfig().camera.width
     return {
         "rgb": np.asarray(parts["rgb"], np.uint8).reshape(-1, 2, h, w, 3),
@@ -298,18 +318,22 @@ def generate_orchard_shard(
         "baseline_m": np.asarray(parts["baseline_m"], np.float32),
         "seeds": np.asarray(parts["seeds"], np.int64),
         "architectures": np.asarray(parts["arch"], np.int8),
+        "n_secondaries": np.asarray(parts["n_secondaries"], np.int16),
     }
 
 
 ORCHARD_KEYS = ("rgb", "flow", "labels", "seeds", "architectures")
 """The arrays training reads (``baseline_m`` is a record of the pair, not read)."""
+OPTIONAL_ORCHARD_KEYS = ("n_secondaries",)
+"""Arrays read when every shard has them (older shards lack them)."""
 
 
 def load_orchard_shards(data_dir: Path) -> dict[str, np.ndarray]:
     """Concatenate every orchard shard of a folder (sorted by name).
 
     Returns:
-        The arrays of the module docstring, over all shards.
+        The arrays of the module docstring, over all shards; an optional array
+        (:data:`OPTIONAL_ORCHARD_KEYS`) only when every shard holds it.
 
     Raises:
         FileNotFoundError: No shard in ``data_dir``.
@@ -321,12 +345,17 @@ def load_orchard_shards(data_dir: Path) -> dict[str, np.ndarray]:
             f"no shard_*.npz in {data_dir}: run `python -m branch_gym.segmenter_training "
             "generate-orchard` first"
         )
-    parts: dict[str, list[np.ndarray]] = {key: [] for key in ORCHARD_KEYS}
+    parts: dict[str, list[np.ndarray]] = {key: [] for key in ORCHARD_KEYS + OPTIONAL_ORCHARD_KEYS}
     for path in paths:
         with np.load(path) as shard:
             missing = [key for key in ORCHARD_KEYS if key not in shard]
             if missing:
                 raise ValueError(f"{path} is not an orchard shard: it lacks {missing}")
-            for key in ORCHARD_KEYS:
-                parts[key].append(shard[key])
-    return {key: np.concatenate(value) for key, value in parts.items()}
+            for key in ORCHARD_KEYS + OPTIONAL_ORCHARD_KEYS:
+                if key in shard:
+                    parts[key].append(shard[key])
+    return {
+        key: np.concatenate(value)
+        for key, value in parts.items()
+        if key in ORCHARD_KEYS or len(value) == len(paths)
+    }

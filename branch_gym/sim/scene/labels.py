@@ -6,9 +6,10 @@ label                  what
 0                      background of the clean world (its painted ground and wall)
 1                      the scanned primary branch
 2 + i                  the scanned tree's secondary i (``TreeGT.secondaries[i]``)
-2 + n                  the rest of the scanned tree, not scored (``TreeGT.details``:
-                       spurs, stubs, buds; other uprights and the cordon of a UFO tree),
-                       n = number of secondaries
+2 + n                  the scanned tree's details, not scored (``TreeGT.details``:
+                       spurs, stubs, buds), n = number of secondaries
+3 + n                  the rest of the scanned tree, not scored: the other uprights and
+                       the cordon of a UFO tree (orchard world)
 100 + k                clutter object k of the clean world (``TreeGT.clutter``)
 200                    sky (orchard world)
 201                    ground (orchard world)
@@ -46,6 +47,7 @@ __all__ = [
     "SKY_LABEL",
     "WIRE_LABEL",
     "details_label",
+    "own_uprights_label",
     "is_occluding_clutter",
     "is_scanned_tree",
 ]
@@ -54,6 +56,15 @@ __all__ = [
 def details_label(n_secondaries: int) -> int:
     """The label of the scanned tree's unscored parts, after its ``n_secondaries`` secondaries."""
     return FIRST_SECONDARY_LABEL + n_secondaries
+
+
+def own_uprights_label(n_secondaries: int) -> int:
+    """The label of a UFO tree's other uprights and cordon (orchard world), after its details.
+
+    Kept apart from :func:`details_label` because a segmenter's target may treat them apart:
+    hand masks of real frames draw a tree's uprights but not its spurs or buds.
+    """
+    return details_label(n_secondaries) + 1
 
 
 def is_scanned_tree(labels: np.ndarray) -> np.ndarray:

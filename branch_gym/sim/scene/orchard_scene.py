@@ -34,10 +34,11 @@ from branch_gym.sim.scene.camera_model import CameraConfig, CameraModel
 from branch_gym.sim.scene.camera_spec import CameraSpec
 from branch_gym.sim.scene.impostor import ImpostorPlane, row_strips
 from branch_gym.sim.scene.labels import (
+    FIRST_CLUTTER_LABEL,
     FIRST_ROW_TREE_LABEL,
     POST_LABEL,
     WIRE_LABEL,
-    details_label,
+    own_uprights_label,
 )
 from branch_gym.sim.scene.orchard_background import OrchardBackground, srgb_to_linear
 from branch_gym.sim.scene.orchard_row import (
@@ -190,11 +191,17 @@ class OrchardScene:
         self.sky = Sky(config.sky, rng)
         self.camera = CameraModel(config.camera, rng)
         self._noise_rng = rng.spawn(1)[0]  # per-frame sensor noise
-        scanned_detail_label = details_label(len(tree.secondaries))
+        own_uprights = own_uprights_label(len(tree.secondaries))
+        if own_uprights >= FIRST_CLUTTER_LABEL:
+            raise ValueError(
+                f"too many secondaries ({len(tree.secondaries)}) for the orchard's labels: the "
+                f"tree's uprights would take label {own_uprights}, which must stay below "
+                f"{FIRST_CLUTTER_LABEL}"
+            )
         folder = scene_folder()
         folder.mkdir(parents=True, exist_ok=True)
         try:
-            self._add_row_body(folder, bark, scanned_detail_label)
+            self._add_row_body(folder, bark, own_uprights)
             self._add_trellis(folder, rng)
         finally:
             shutil.rmtree(folder, ignore_errors=True)
@@ -225,7 +232,7 @@ class OrchardScene:
         sun_light = float(np.clip(self.sky.sun_radiance, 0.0, _MAX_DIFFUSE))
         return ambient, sun_light
 
-    def _add_row_body(self, folder: Path, bark: np.ndarray, scanned_detail_label: int) -> None:
+    def _add_row_body(self, folder: Path, bark: np.ndarray, own_uprights: int) -> None:
         """One multi-link body: link k = row tree k (the UFO cordon joins the scanned tree)."""
         p = self.bullet.p
         bark_png = write_png(bark, folder / "row_bark.png")
@@ -233,7 +240,7 @@ class OrchardScene:
         own = [b for tree in self.row.trees if tree.same_tree for b in tree.branches]
         if self.row.cordon is not None:
             own.append(self.row.cordon)
-        parts = [(neighbours, FIRST_ROW_TREE_LABEL), (own, scanned_detail_label)]
+        parts = [(neighbours, FIRST_ROW_TREE_LABEL), (own, own_uprights)]
         parts = [(branches, label) for branches, label in parts if branches]
         if not parts:
             return
