@@ -102,12 +102,14 @@ def evaluate_segmenters(
         ``side_branch_recall`` (share of the side branches' pixels, spurs and buds included, in
         the mask, pooled), ``iou_ignoring_details`` (pooled IoU with the tree's spurs, stubs and
         buds left out of the score, neither to be found nor wrong: the target of real hand
-        masks), ``frames``, ``segment_ms_mean``}.
+        masks), ``side_branch_recall_without_details`` (the same recall of the side branches
+        alone), ``frames``, ``segment_ms_mean``}.
     """
     config = config or EvaluateConfig()
     counts = {name: [0, 0] for name in variants}
     scored_counts = {name: [0, 0] for name in variants}  # details left out
     side_counts = {name: [0, 0] for name in variants}  # side-branch pixels found, all
+    scored_side_counts = {name: [0, 0] for name in variants}  # the same, details left out
     per_frame: dict[str, list[float]] = {name: [] for name in variants}
     times: dict[str, list[float]] = {name: [] for name in variants}
     seeds = range(EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + config.trees)
@@ -127,6 +129,8 @@ def evaluate_segmenters(
                 per_frame[name].append(mask_iou(mask, truth))
                 side_counts[name][0] += int(np.count_nonzero(mask & side))
                 side_counts[name][1] += int(np.count_nonzero(side))
+                scored_side_counts[name][0] += int(np.count_nonzero(mask & side & scored))
+                scored_side_counts[name][1] += int(np.count_nonzero(side & scored))
     return {
         name: {
             "iou": pooled_iou(*counts[name]),
@@ -134,6 +138,8 @@ def evaluate_segmenters(
             "iou_frame_p10": float(np.percentile(per_frame[name], 10)),
             "side_branch_recall": side_counts[name][0] / max(side_counts[name][1], 1),
             "iou_ignoring_details": pooled_iou(*scored_counts[name]),
+            "side_branch_recall_without_details": scored_side_counts[name][0]
+            / max(scored_side_counts[name][1], 1),
             "frames": len(per_frame[name]),
             "segment_ms_mean": 1000 * float(np.mean(times[name])),
         }

@@ -41,6 +41,14 @@ from recon.segmentation.inputs import make_picture_input
 
 _SKY_WINDOW_PX = 41  # window of the nearby sky's colour (our choice: ~the widest trunk)
 _SKY_COLOUR_TOLERANCE = 25.0  # uint8 levels from it that still read as sky (our choice)
+_SKY_MIN_NEARBY_SHARE = 0.05  # the colour rule needs that much sky in the window (our choice)
+# The overcast sky (our choices, from the real dev frames' skies): brightness changing by up to
+# +-25 % from top to bottom, clouds 20-80 px across of up to +-25 % of the level, a tint of up to
+# 8 % per channel.
+_OVERCAST_GRADIENT = 0.25
+_OVERCAST_CLOUD_PX = (20.0, 80.0)
+_OVERCAST_CLOUD_CONTRAST = 0.5
+_OVERCAST_TINT = 0.08
 
 
 def _uniform(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
@@ -168,7 +176,7 @@ def _earlier_sky(rgb_pair: np.ndarray, exact_flow: np.ndarray, sky_now: np.ndarr
     total = cv2.boxFilter(rgb_pair[1].astype(np.float32) * sky_now[..., None], -1, window)
     colour = total / np.maximum(weight, 1e-6)[..., None]
     close = np.abs(rgb_pair[0].astype(np.float32) - colour).max(axis=-1) < _SKY_COLOUR_TOLERANCE
-    return carried_sky | (unseen & close & (weight > 0.05))
+    return carried_sky | (unseen & close & (weight > _SKY_MIN_NEARBY_SHARE))
 
 
 def overcast_backlight(
@@ -181,9 +189,9 @@ def overcast_backlight(
     """Both frames under an overcast sky, everything else lit from behind (a silhouette).
 
     The sky (``SKY_LABEL`` of the current frame; in the earlier frame, :func:`_earlier_sky`)
-    becomes one overcast sky, still in both frames like the
-    rendered one: a vertical gradient around a drawn brightness with soft clouds and a faint
-    tint. Every other pixel is darkened by one drawn gain.
+    becomes one overcast sky, still in both frames like the rendered one: a vertical gradient
+    around a drawn brightness with soft clouds and a faint tint. Every other pixel is darkened
+    by one drawn gain.
 
     Args:
         rgb_pair: (2, H, W, 3) uint8 earlier and current frame.
@@ -200,10 +208,10 @@ def overcast_backlight(
     skies = (_earlier_sky(rgb_pair, exact_flow, sky_now), sky_now)
     level = _uniform(rng, config.overcast_brightness_range)
     rows = np.linspace(-1.0, 1.0, h, dtype=np.float32)[:, None]
-    gradient = level * (1.0 + rng.uniform(-0.25, 0.25) * rows)  # lighter up or down
-    clouds = smooth_noise(rng, (h, w), float(rng.uniform(20.0, 80.0))) - 0.5
-    grey = gradient + clouds * rng.uniform(0.0, 0.5) * level
-    tint = 1.0 + rng.uniform(-0.08, 0.08, size=3).astype(np.float32)
+    gradient = level * (1.0 + rng.uniform(-_OVERCAST_GRADIENT, _OVERCAST_GRADIENT) * rows)
+    clouds = smooth_noise(rng, (h, w), _uniform(rng, _OVERCAST_CLOUD_PX)) - 0.5
+    grey = gradient + clouds * rng.uniform(0.0, _OVERCAST_CLOUD_CONTRAST) * level
+    tint = 1.0 + rng.uniform(-_OVERCAST_TINT, _OVERCAST_TINT, size=3).astype(np.float32)
     sky = np.clip(grey[..., None] * tint, 0, 255).astype(np.uint8)
     gain = _uniform(rng, config.backlight_gain_range)
     out = np.empty_like(rgb_pair)

@@ -47,9 +47,9 @@ __all__ = [
     "SKY_LABEL",
     "WIRE_LABEL",
     "details_label",
-    "own_uprights_label",
     "is_occluding_clutter",
     "is_scanned_tree",
+    "own_uprights_label",
 ]
 
 
