@@ -42,7 +42,7 @@ from branch_gym.evaluation.trials import (
 )
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
-from recon.config import ModelerConfig, modeler_overrides
+from recon.config import LEARNED_MASK_MIN_REACH_M, ModelerConfig, modeler_overrides
 from recon.io.folder import ScanFolder
 from recon.metrics import TreeMetrics, aggregate
 from recon.model import BranchModel, TreeModel
@@ -497,6 +497,7 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     before = config_to_dict(config)  # the config as published before the fields existed
     del before["render_tracking_frames"], before["modeler"]["secondary_trust_redetected"]
     del before["modeler"]["secondary_trust_tolerance_px"]
+    del before["modeler"]["secondary_min_reach_m"]
     del before["frame_pairing"]
     del before["world"]["orchard"], before["world"]["tree"]["architecture"]
     del before["world"]["tree"]["primary_base_height_m"]
@@ -520,6 +521,23 @@ def test_trials_of_learned_masks_before_the_trust_tolerance_are_not_mixed_with_n
     learned = ScanConfig(segmenter="learned")
     assert learned.modeler_config().secondary_trust_tolerance_px == 4.0
     assert scan_hash(learned) != scan_hash(replace(learned, modeler=exact))
+
+
+def test_trials_of_learned_masks_before_the_reach_filter_are_not_mixed_with_new_ones() -> None:
+    """The reach left to the mask source hashes as resolved: unchanged for the renderer's labels
+    (0, hash-neutral), changed for a learned segmenter; ``--modeler secondary_min_reach_m=0``
+    hashes as the trials saved before the filter (the published-hash test above)."""
+    from dataclasses import replace
+
+    def scan_hash(scan: ScanConfig) -> str:
+        return EvalConfig(("none",), 1, 0, 1, scan).scan_hash
+
+    no_reach = ModelerConfig(secondary_min_reach_m=0.0)
+    labels = ScanConfig()
+    assert scan_hash(labels) == scan_hash(replace(labels, modeler=no_reach))
+    learned = ScanConfig(segmenter="learned")
+    assert learned.modeler_config().secondary_min_reach_m == LEARNED_MASK_MIN_REACH_M
+    assert scan_hash(learned) != scan_hash(replace(learned, modeler=no_reach))
 
 
 def test_modeler_settings_from_the_command_line() -> None:

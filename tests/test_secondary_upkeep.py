@@ -118,10 +118,15 @@ def test_the_trust_tolerance_keeps_a_branch_a_few_pixels_beside_a_learned_mask()
 
 def test_a_set_trust_tolerance_is_kept_and_a_negative_one_refused() -> None:
     set_one = ModelerConfig(secondary_trust_tolerance_px=2.0)
-    assert set_one.for_masks(learned=True) is set_one
-    assert ModelerConfig(secondary_trust_tolerance_px=0.0).for_masks(learned=True) == (
+    assert set_one.for_masks(learned=True).secondary_trust_tolerance_px == 2.0
+    assert (
         ModelerConfig(secondary_trust_tolerance_px=0.0)
+        .for_masks(learned=True)
+        .secondary_trust_tolerance_px
+        == 0.0
     )
+    both = ModelerConfig(secondary_trust_tolerance_px=0.0, secondary_min_reach_m=0.0)
+    assert both.for_masks(learned=True) is both
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="secondary_trust_tolerance_px"):
             ModelerConfig(secondary_trust_tolerance_px=bad)

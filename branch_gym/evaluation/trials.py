@@ -169,6 +169,7 @@ HASH_NEUTRAL_DEFAULTS = {
     },
     "modeler.secondary_trust_redetected": False,
     "modeler.secondary_trust_tolerance_px": 0.0,  # hashed resolved (ScanConfig.modeler_config)
+    "modeler.secondary_min_reach_m": 0.0,  # hashed resolved (ScanConfig.modeler_config)
     "world.orchard": None,
     "world.tree.architecture": "paper",
     "world.tree.primary_base_height_m": 0.0,

@@ -61,17 +61,23 @@ class SecondaryBranches:
         self.rng = rng
         self._branches: list[_Secondary] = []
         self._next_id = 1
+        self._primary_axis: np.ndarray | None = None  # (3,) unit base-to-top of the primary
 
     def reset(self) -> None:
         self._branches.clear()
         self._next_id = 1
+        self._primary_axis = None
 
     def models(self) -> list[BranchModel]:
-        """Reported secondaries: confirmed often enough and still trusted."""
+        """Reported secondaries: confirmed often enough, still trusted, and reaching
+        ``secondary_min_reach_m`` out from the primary."""
+        min_reach_m = self.config.secondary_min_reach_m or 0.0
         return [
             b.model
             for b in self._branches
-            if b.model is not None and b.detections >= self.config.secondary_confirmations
+            if b.model is not None
+            and b.detections >= self.config.secondary_confirmations
+            and (min_reach_m == 0.0 or reach_m(b.model.points, self._primary_axis) >= min_reach_m)
         ]
 
     def add_detections(
@@ -93,6 +99,8 @@ class SecondaryBranches:
             Number of new branches created.
         """
         camera_center = None if frame is None else frame.T_world_camera[:3, 3]
+        if primary is not None and len(primary.points) >= 2:
+            self._primary_axis = _direction(primary.points)
         created = 0
         for branch in self._branches:
             branch.redetected = False
@@ -362,6 +370,20 @@ def _disk_offsets(radius_px: float) -> tuple[np.ndarray, np.ndarray]:
     dy, dx = np.mgrid[-r : r + 1, -r : r + 1]
     inside = dy**2 + dx**2 <= radius_px**2
     return dy[inside], dx[inside]
+
+
+def reach_m(points: np.ndarray, primary_axis: np.ndarray | None) -> float:
+    """How far a branch reaches out from the primary: its base-to-tip vector's part
+    perpendicular to ``primary_axis`` (metres; the whole base-to-tip length without an axis).
+
+    Args:
+        points: (N, 3) branch centerline, base first, metres.
+        primary_axis: (3,) unit base-to-top direction of the primary, or None.
+    """
+    span = points[-1] - points[0]
+    if primary_axis is not None:
+        span = span - float(span @ primary_axis) * primary_axis
+    return float(np.linalg.norm(span))
 
 
 def _direction(points: np.ndarray) -> np.ndarray:
