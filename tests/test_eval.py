@@ -507,37 +507,27 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     assert config_hash(redetected) != published
 
 
-def test_trials_of_learned_masks_before_the_trust_tolerance_are_not_mixed_with_new_ones() -> None:
-    """The tolerance left to the mask source hashes as resolved: unchanged for the renderer's
-    labels, changed for a learned segmenter (its saved trials ran 0 px, now 4 px)."""
+@pytest.mark.parametrize(
+    ("field_name", "learned_value"),
+    [("secondary_trust_tolerance_px", 4.0), ("secondary_min_reach_m", LEARNED_MASK_MIN_REACH_M)],
+)
+def test_trials_of_learned_masks_before_a_mask_source_setting_are_not_mixed_with_new_ones(
+    field_name: str, learned_value: float
+) -> None:
+    """A setting left to the mask source hashes as resolved: unchanged for the renderer's labels
+    (0, hash-neutral), changed for a learned segmenter (its trials saved before the setting ran
+    0); ``--modeler FIELD=0`` hashes as those trials (the published-hash test above)."""
     from dataclasses import replace
 
     def scan_hash(scan: ScanConfig) -> str:
         return EvalConfig(("none",), 1, 0, 1, scan).scan_hash
 
-    exact = ModelerConfig(secondary_trust_tolerance_px=0.0)
+    exact = ModelerConfig(**{field_name: 0.0})
     labels = ScanConfig()
     assert scan_hash(labels) == scan_hash(replace(labels, modeler=exact))
     learned = ScanConfig(segmenter="learned")
-    assert learned.modeler_config().secondary_trust_tolerance_px == 4.0
+    assert getattr(learned.modeler_config(), field_name) == learned_value
     assert scan_hash(learned) != scan_hash(replace(learned, modeler=exact))
-
-
-def test_trials_of_learned_masks_before_the_reach_filter_are_not_mixed_with_new_ones() -> None:
-    """The reach left to the mask source hashes as resolved: unchanged for the renderer's labels
-    (0, hash-neutral), changed for a learned segmenter; ``--modeler secondary_min_reach_m=0``
-    hashes as the trials saved before the filter (the published-hash test above)."""
-    from dataclasses import replace
-
-    def scan_hash(scan: ScanConfig) -> str:
-        return EvalConfig(("none",), 1, 0, 1, scan).scan_hash
-
-    no_reach = ModelerConfig(secondary_min_reach_m=0.0)
-    labels = ScanConfig()
-    assert scan_hash(labels) == scan_hash(replace(labels, modeler=no_reach))
-    learned = ScanConfig(segmenter="learned")
-    assert learned.modeler_config().secondary_min_reach_m == LEARNED_MASK_MIN_REACH_M
-    assert scan_hash(learned) != scan_hash(replace(learned, modeler=no_reach))
 
 
 def test_modeler_settings_from_the_command_line() -> None:
