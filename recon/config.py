@@ -19,6 +19,8 @@ LEARNED_SEGMENTER = "learned"  # the kind of a learned segmenter's spec: "learne
 # from pixels (seeds 10,000,000+, never the tables'), re-scored from the saved models. Spurious:
 # none 70.6 -> 45.6 %, periodic 22.5 deg / 1.5 109 -> 86 %, 45 deg / 1.5 157 -> 120 %; 3.5 cm
 # cost 45 deg / 1.5 one of 61 branches (docs/results/orchard.md, "Short false side branches").
+# Tall spindle: no branch lost. UFO: one of 64-66 lost under none and 22.5 deg / 1.5 (steep
+# thin side branches reach little): there, 0 keeps every branch.
 LEARNED_MASK_MIN_REACH_M = 0.03
 
 
