@@ -19,20 +19,9 @@ import argparse
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from branch_gym.evaluation.trials import TRIALS_DIR, load_trial
 from recon.metrics import evaluate
-from recon.model3d.secondary import reach_m
-
-
-def primary_axis(points: np.ndarray) -> np.ndarray | None:
-    """(3,) unit base-to-top direction of a primary's (N, 3) points, or None (too short)."""
-    if len(points) < 2:
-        return None
-    span = points[-1] - points[0]
-    norm = float(np.linalg.norm(span))
-    return span / norm if norm > 0 else None
+from recon.model3d.secondary import primary_axis, reach_m
 
 
 def sweep(folder: Path, reaches_m: list[float]) -> dict[float, dict[str, int]]:

@@ -100,7 +100,7 @@ class SecondaryBranches:
         """
         camera_center = None if frame is None else frame.T_world_camera[:3, 3]
         if primary is not None and len(primary.points) >= 2:
-            self._primary_axis = _direction(primary.points)
+            self._primary_axis = primary_axis(primary.points)
         created = 0
         for branch in self._branches:
             branch.redetected = False
@@ -372,17 +372,26 @@ def _disk_offsets(radius_px: float) -> tuple[np.ndarray, np.ndarray]:
     return dy[inside], dx[inside]
 
 
-def reach_m(points: np.ndarray, primary_axis: np.ndarray | None) -> float:
+def primary_axis(points: np.ndarray) -> np.ndarray | None:
+    """(3,) unit base-to-top direction of a primary's (N, 3) points; None when it has no extent."""
+    if len(points) < 2:
+        return None
+    span = points[-1] - points[0]
+    norm = float(np.linalg.norm(span))
+    return span / norm if norm > 0 else None
+
+
+def reach_m(points: np.ndarray, axis: np.ndarray | None) -> float:
     """How far a branch reaches out from the primary: its base-to-tip vector's part
-    perpendicular to ``primary_axis`` (metres; the whole base-to-tip length without an axis).
+    perpendicular to ``axis`` (metres; the whole base-to-tip length without an axis).
 
     Args:
         points: (N, 3) branch centerline, base first, metres.
-        primary_axis: (3,) unit base-to-top direction of the primary, or None.
+        axis: (3,) unit base-to-top direction of the primary (:func:`primary_axis`), or None.
     """
     span = points[-1] - points[0]
-    if primary_axis is not None:
-        span = span - float(span @ primary_axis) * primary_axis
+    if axis is not None:
+        span = span - float(span @ axis) * axis
     return float(np.linalg.norm(span))
 
 
