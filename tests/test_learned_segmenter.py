@@ -122,6 +122,31 @@ def test_same_seed_same_weights_and_resume(tiny_data: Path, tmp_path: Path) -> N
     assert not all(torch.equal(x, y) for x, y in zip(a.parameters(), d.parameters(), strict=True))
 
 
+def test_encoder_learning_rate_scale_holds_the_encoder(tiny_data: Path, tmp_path: Path) -> None:
+    """At scale 0 training moves the decoder only; bad scales are refused by name."""
+    config = replace(_tiny_config(steps=3), encoder_learning_rate_scale=0.0)
+    torch.manual_seed(0)  # train() seeds the same init from its seed
+    trained = train(config, tiny_data, tmp_path / "run", seed=5, workers=0, progress=False).model
+    torch.manual_seed(5)
+    start = SegmenterNet(TINY_NET)
+    encoder = ("stem.", "down.")
+    for (name, before), after in zip(
+        start.state_dict().items(), trained.state_dict().values(), strict=True
+    ):
+        if name.startswith(encoder) and "running_" not in name and "num_batches" not in name:
+            assert torch.equal(before, after), name
+    moved = [
+        name
+        for (name, before), after in zip(
+            start.state_dict().items(), trained.state_dict().values(), strict=True
+        )
+        if not name.startswith(encoder) and not torch.equal(before, after)
+    ]
+    assert moved
+    with pytest.raises(ValueError, match="encoder_learning_rate_scale"):
+        TrainConfig(encoder_learning_rate_scale=1.5)
+
+
 def _arrays(data_dir: Path) -> tuple[np.ndarray, np.ndarray]:
     with np.load(shard_path(data_dir, 0)) as shard:
         return shard["rgb"], shard["classes"]

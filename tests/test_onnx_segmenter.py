@@ -40,8 +40,16 @@ def _branch_frames(height: int, width: int, seed: int) -> tuple[np.ndarray, np.n
     return frames[0], frames[1]
 
 
-@pytest.mark.parametrize("weights", [SHIPPED_WEIGHTS, RGB_CLEAN_WEIGHTS], ids=lambda p: p.stem)
+# The EfficientNet-Lite0 network (docs/orchard_segmenter.md), loadable as learned:PATH.
+LITE0_WEIGHTS = SHIPPED_WEIGHTS.with_name("orchard_flow_lite0.pt")
+
+
+@pytest.mark.parametrize(
+    "weights", [SHIPPED_WEIGHTS, RGB_CLEAN_WEIGHTS, LITE0_WEIGHTS], ids=lambda p: p.stem
+)
 def test_shipped_weights_have_a_current_onnx_export(weights: Path) -> None:
+    if weights == LITE0_WEIGHTS:
+        pytest.importorskip("efficientnet_lite_pytorch")  # its PyTorch runtime needs the blocks
     assert load_onnx_network(weights) is not None, f"re-export {weights} (export-onnx)"
     spec = "learned" if weights == SHIPPED_WEIGHTS else f"learned:{weights}"
     assert load_segmenter(spec).runtime == "onnxruntime"

@@ -58,6 +58,7 @@ from branch_gym.segmenter_training.real_frames import (
 )
 from branch_gym.segmenter_training.train import export_checkpoint, pair_iou, train
 from recon.segmentation import load_segmenter
+from recon.segmentation.network import ENCODERS, LITE0_ENCODER, LITE0_WIDTHS, SMALL_ENCODER
 
 logger = logging.getLogger("branch_gym.segmenter_training")
 
@@ -105,15 +106,19 @@ def _generate_orchard(args: argparse.Namespace) -> None:
 def _train(args: argparse.Namespace) -> None:
 
     base = TrainConfig()
+    default_widths = LITE0_WIDTHS if args.encoder == LITE0_ENCODER else base.net.widths
     net = replace(
         base.net, use_flow=args.flow or args.flow_picture, flow_picture=args.flow_picture,
-        widths=tuple(args.widths or base.net.widths),
+        encoder=args.encoder,
+        widths=tuple(args.widths or default_widths),
         decoder_widths=tuple(args.decoder_widths or base.net.decoder_widths),
     )  # fmt: skip
     flow = replace(base.orchard.flow, no_flow_probability=args.no_flow_probability)
     config = replace(
         base, net=net, steps=args.steps, batch_size=args.batch_size,
-        learning_rate=args.learning_rate, side_branch_weight=args.side_branch_weight,
+        learning_rate=args.learning_rate,
+        encoder_learning_rate_scale=args.encoder_learning_rate_scale,
+        side_branch_weight=args.side_branch_weight,
         orchard=replace(
             base.orchard, flow=flow, details_as_background=args.details_as_background,
             overcast_probability=args.overcast_probability,
@@ -254,6 +259,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="encoder channels per level (default: SegmenterNetConfig's)")  # fmt: skip
     tr.add_argument("--decoder-widths", type=int, nargs="+", default=None,
                     help="decoder channels, one fewer than --widths")  # fmt: skip
+    tr.add_argument("--encoder-learning-rate-scale", type=float,
+                    default=TrainConfig.encoder_learning_rate_scale,
+                    help="the encoder's learning rate as a share of --learning-rate")  # fmt: skip
+    tr.add_argument("--encoder", choices=ENCODERS, default=SMALL_ENCODER,
+                    help=f"the network's encoder ({LITE0_ENCODER}: its first four stages, "
+                    "starting from the ImageNet weights)")  # fmt: skip
     tr.add_argument("--side-branch-weight", type=float, default=TrainConfig.side_branch_weight,
                     help="weight of side-branch pixels in the cross-entropy")  # fmt: skip
     tr.add_argument(

@@ -261,6 +261,9 @@ class TrainConfig:
         crop_hw: Training crop (height, width) in pixels, multiples of the network's
             ``size_multiple``; cropped before augmentation (both cost in proportion to pixels).
         learning_rate: Peak AdamW learning rate (one-cycle schedule).
+        encoder_learning_rate_scale: The encoder's learning rate as a share of
+            ``learning_rate`` (1: the same; below 1 a pretrained encoder keeps more of its
+            ImageNet features, the usual lever for transfer to real images).
         weight_decay: AdamW weight decay.
         warmup_fraction: Fraction of the steps spent warming up.
         dice_weight: Weight of the soft-Dice term next to the binary cross-entropy.
@@ -282,6 +285,7 @@ class TrainConfig:
     batch_size: int = 8
     crop_hw: tuple[int, int] = (160, 224)
     learning_rate: float = 4e-3
+    encoder_learning_rate_scale: float = 1.0
     weight_decay: float = 1e-4
     warmup_fraction: float = 0.05
     dice_weight: float = 1.0
@@ -292,6 +296,11 @@ class TrainConfig:
     threads: int = 1
 
     def __post_init__(self) -> None:
+        if not 0.0 <= self.encoder_learning_rate_scale <= 1.0:
+            raise ValueError(
+                "TrainConfig.encoder_learning_rate_scale must be in [0, 1], got "
+                f"{self.encoder_learning_rate_scale!r}"
+            )
         if not self.side_branch_weight > 0.0:
             raise ValueError(
                 f"TrainConfig.side_branch_weight must be > 0, got {self.side_branch_weight!r}"

