@@ -68,6 +68,9 @@ def test_imagenet_start_reproduces_the_reference_features() -> None:
     for got, want in zip(features, outputs, strict=True):
         torch.testing.assert_close(got, want, atol=1e-5, rtol=1e-5)
     assert torch.count_nonzero(net.lite0.stem[0].weight[:, 3:]) == 0  # the flow starts unused
+    encoder = {id(p) for p in net.encoder_parameters()}  # what --encoder-learning-rate-scale scales
+    assert encoder == {id(p) for p in net.lite0.parameters()}
+    assert not encoder & {id(p) for p in net.head.parameters()}
 
 
 def test_imagenet_start_names_a_missing_or_misshapen_weight() -> None:

@@ -188,18 +188,14 @@ def validation_iou(
 
 
 def _parameter_groups(model: SegmenterNet, config: TrainConfig) -> list[dict]:
-    """AdamW parameter groups, each with its ``lr_scale``: the encoder's and the rest."""
-    scale = config.encoder_learning_rate_scale
-    if scale == 1.0:
-        return [{"params": list(model.parameters()), "lr_scale": 1.0}]
-    encoder = model.lite0 if model.config.encoder == LITE0_ENCODER else None
-    if encoder is None:
-        encoder_params = [*model.stem.parameters(), *model.down.parameters()]
-    else:
-        encoder_params = list(encoder.parameters())
-    ids = {id(p) for p in encoder_params}
+    """AdamW parameter groups, each with its ``lr_scale``: the rest of the network, the encoder."""
+    encoder = model.encoder_parameters()
+    ids = {id(p) for p in encoder}
     rest = [p for p in model.parameters() if id(p) not in ids]
-    return [{"params": rest, "lr_scale": 1.0}, {"params": encoder_params, "lr_scale": scale}]
+    return [
+        {"params": rest, "lr_scale": 1.0},
+        {"params": encoder, "lr_scale": config.encoder_learning_rate_scale},
+    ]
 
 
 def lite0_imagenet_state_dict() -> dict[str, torch.Tensor]:

@@ -172,6 +172,12 @@ class SegmenterNet(nn.Module):
             nn.Conv2d(dw[-1], SUBPIXELS * self.config.out_channels, 1), nn.PixelShuffle(2)
         )
 
+    def encoder_parameters(self) -> list[nn.Parameter]:
+        """The encoder's parameters (the stem and the down-sampling levels, or Lite0's)."""
+        if self.config.encoder == LITE0_ENCODER:
+            return list(self.lite0.parameters())
+        return [*self.stem.parameters(), *self.down.parameters()]
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Logits of one batch.
 
