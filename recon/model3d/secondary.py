@@ -376,9 +376,8 @@ def primary_axis(points: np.ndarray) -> np.ndarray | None:
     """(3,) unit base-to-top direction of a primary's (N, 3) points; None when it has no extent."""
     if len(points) < 2:
         return None
-    span = points[-1] - points[0]
-    norm = float(np.linalg.norm(span))
-    return span / norm if norm > 0 else None
+    direction = _direction(points)
+    return direction if direction.any() else None
 
 
 def reach_m(points: np.ndarray, axis: np.ndarray | None) -> float:

@@ -40,6 +40,7 @@ ENCODERS = (SMALL_ENCODER, LITE0_ENCODER)
 # (measured 2026-12-04).
 LITE0_WIDTHS = (16, 24, 40, 80)
 LITE0_STAGE_ENDS = (1, 3, 5, 8)
+LITE0_STAGE_STARTS = (0, *LITE0_STAGE_ENDS[:-1])
 
 
 @dataclass(frozen=True)
@@ -242,10 +243,9 @@ class Lite0Encoder(nn.Module):
             ) from error
         net = EfficientNet.from_name("efficientnet-lite0", in_channels=in_channels)
         self.stem = nn.Sequential(net._conv_stem, net._bn0, nn.ReLU6(inplace=True))
-        starts = (0, *LITE0_STAGE_ENDS[:-1])
         self.stages = nn.ModuleList(
             nn.Sequential(*net._blocks[start:end])
-            for start, end in zip(starts, LITE0_STAGE_ENDS, strict=True)
+            for start, end in zip(LITE0_STAGE_STARTS, LITE0_STAGE_ENDS, strict=True)
         )
 
     def forward(self, x: torch.Tensor) -> list[torch.Tensor]:
@@ -273,7 +273,6 @@ def load_lite0_imagenet(encoder: Lite0Encoder, state_dict: dict[str, torch.Tenso
     Raises:
         ValueError: A weight the encoder needs is missing or has another shape.
     """
-    starts = (0, *LITE0_STAGE_ENDS[:-1])
     own = encoder.state_dict()
     mapped = {}
     for name, value in own.items():
@@ -283,7 +282,7 @@ def load_lite0_imagenet(encoder: Lite0Encoder, state_dict: dict[str, torch.Tenso
             source = "_bn0." + name.removeprefix("stem.1.")
         else:  # stages.S.K.rest -> _blocks.(start of S + K).rest
             _, stage, index, rest = name.split(".", 3)
-            source = f"_blocks.{starts[int(stage)] + int(index)}.{rest}"
+            source = f"_blocks.{LITE0_STAGE_STARTS[int(stage)] + int(index)}.{rest}"
         if source not in state_dict:
             if name.endswith("num_batches_tracked"):  # a counter, not a weight
                 mapped[name] = value
