@@ -157,6 +157,38 @@ def test_masks_without_a_branch_give_no_primary(mask: np.ndarray) -> None:
     assert result.primary is None and result.secondaries == []
 
 
+def _vertical_trunk(half_width: float, top: int = 0, bottom: int = H, tilt_px: float = 8.0):
+    """A straight trunk of ``half_width`` from row ``top`` to ``bottom``, leaning by
+    ``tilt_px`` over the view's height, and its centreline."""
+    rows = np.arange(top, bottom, 0.5)
+    centre = np.stack([W / 2 + tilt_px * (rows / H - 0.5), rows], axis=1)
+    return _tube(centre, half_width), centre
+
+
+@pytest.mark.parametrize("half_width", [28.0, 33.0])
+def test_a_thick_trunk_that_spans_the_view_is_the_primary(half_width: float) -> None:
+    """A trunk close to the camera is wider than the elongation test allows (the view holds
+    fewer than four of its diameters) and is still the branch to follow."""
+    mask, centre = _vertical_trunk(half_width)
+    result = fit_mask_curves(mask)
+    assert result.primary is not None
+    assert cKDTree(centre).query(result.primary.samples_px)[0].max() < 2.0
+    narrow_only = Curve2DConfig(max_spanning_width=0.1)  # the elongation test alone
+    assert fit_mask_curves(mask, narrow_only).primary is None
+
+
+@pytest.mark.parametrize(
+    ("half_width", "top", "bottom"),
+    [(28.0, 60, 180), (110.0, 0, H)],
+    ids=["thick-and-short", "wider-than-half-the-view"],
+)
+def test_thick_masks_that_do_not_span_the_view_or_fill_it_give_no_primary(
+    half_width: float, top: int, bottom: int
+) -> None:
+    mask, _ = _vertical_trunk(half_width, top, bottom)
+    assert fit_mask_curves(mask).primary is None
+
+
 def test_branch_survives_speckle_noise() -> None:
     mask, _ = _branch_mask()
     result = fit_mask_curves(mask | _speckle(0.02, seed=1))

@@ -164,6 +164,42 @@ def test_broken_trunk_is_one_primary(gap_px: int) -> None:
     assert mask[np.rint(lifted[:, 1]).astype(int), np.rint(lifted[:, 0]).astype(int)].all()
 
 
+def _cut_trunk(gap_px: int, far_half_width: float = PRIMARY_HALF_WIDTH, shift_px: float = 0.0):
+    """The trunk cut across at row 120 by an occluder ``gap_px`` tall (a wire or a tie in front
+    of it); above the cut, it is ``far_half_width`` wide and shifted by ``shift_px`` in u."""
+    rows = _GRID[:, 1].reshape(H, W)
+    shifted = CubicBezier(PRIMARY.control_points + np.array([shift_px, 0.0]))
+    above = _tube(_dense(shifted), far_half_width) & (rows < 120)
+    return (_primary_mask() & (rows >= 120 + gap_px)) | above
+
+
+@pytest.mark.parametrize("gap_px", [10, 18])
+def test_a_trunk_cut_by_an_occluder_is_one_primary(gap_px: int) -> None:
+    """Wider than the small-gap rule, narrower than a trunk diameter: an occlusion bridge joins
+    the pieces (``SkeletonConfig.occlusion_gap_radii``); the bridged samples are not lifted."""
+    mask = _cut_trunk(gap_px)
+    result = fit_mask_curves(mask)
+    assert result.primary is not None and _primary_error_px(result) < 2.0
+    assert result.primary.samples_px[0, 1] > H - 15 and result.primary.samples_px[-1, 1] < 15
+    lifted = result.primary.samples_px[result.primary.liftable]
+    assert mask[np.rint(lifted[:, 1]).astype(int), np.rint(lifted[:, 0]).astype(int)].all()
+    off = Curve2DConfig(skeleton=SkeletonConfig(occlusion_gap_radii=0.0))
+    unbridged = fit_mask_curves(mask, off).primary
+    assert unbridged is None or np.ptp(unbridged.samples_px[:, 1]) < 0.6 * H
+
+
+@pytest.mark.parametrize(
+    ("gap_px", "far_half_width", "shift_px"),
+    [(30, PRIMARY_HALF_WIDTH, 0.0), (12, 4.0, 0.0), (12, PRIMARY_HALF_WIDTH, 18.0)],
+    ids=["gap-wider-than-a-diameter", "thinner-beyond", "beside-not-beyond"],
+)
+def test_pieces_that_do_not_continue_the_branch_are_not_bridged(
+    gap_px: int, far_half_width: float, shift_px: float
+) -> None:
+    result = fit_mask_curves(_cut_trunk(gap_px, far_half_width, shift_px))
+    assert len(result.skeleton.bridge_uv) == 0
+
+
 def test_two_trunks_in_view_give_one_primary_with_its_side_branches() -> None:
     """With the model's trunk as prior (every iteration after the first), the followed trunk
     stays the primary; without one, either trunk may be taken, never a mix, and the other trunk

@@ -106,8 +106,8 @@ def fit_mask_curves(
     dist = curve.closest_params(pixels, newton_iterations=NEWTON_ITERATIONS)[1]
     fraction = float(np.mean(dist <= config.inlier_threshold_px))
     primary = make_curve2d(curve, pixels, radii, score, fraction, config)
-    if primary.length_px < config.min_primary_length_px or primary.length_px < (
-        config.min_primary_elongation * 2.0 * float(primary.radii_px.mean())
+    if primary.length_px < config.min_primary_length_px or not _branch_like(
+        primary, pixels, direction, clean.shape, config
     ):
         return no_primary
     secondaries, more, cut = find_secondaries(sg, path, primary, config, clean)
@@ -115,6 +115,42 @@ def fit_mask_curves(
         primary = _flag_bridged(primary, graph, clean)
         secondaries = [_flag_bridged(s, graph, clean) for s in secondaries]
     return MaskCurves(primary, secondaries, truncated or cut, evaluated + more, graph, clean)
+
+
+def _branch_like(
+    primary: Curve2D,
+    pixels: np.ndarray,
+    direction: np.ndarray,
+    shape: tuple[int, ...],
+    config: Curve2DConfig,
+) -> bool:
+    """Whether a primary candidate is elongated like a branch, not a blob or a full mask: at
+    least ``min_primary_elongation`` diameters long, or spanning the view along the scan
+    direction (``primary_view_span``) while at most ``max_spanning_width`` of it wide and
+    smooth (``spanning_min_inlier_fraction``).
+
+    Args:
+        primary: The candidate curve.
+        pixels: (P, 2) its skeleton path's pixels (u, v).
+        direction: (2,) unit scan direction (u, v).
+        shape: (H, W) of the mask.
+        config: The thresholds.
+    """
+    diameter_px = 2.0 * float(primary.radii_px.mean())
+    if primary.length_px >= config.min_primary_elongation * diameter_px:
+        return True
+    border = config.skeleton.border_px
+    interior = np.array([shape[1] - 1 - 2 * border, shape[0] - 1 - 2 * border], dtype=float)
+    along = float(np.abs(direction) @ interior)
+    across = float(np.abs(direction[::-1]) @ interior)
+    progress = pixels @ direction
+    span = float(progress.max() - progress.min())
+    # The median radius: the border band's cut narrows a wide mask's skeleton radii at its ends.
+    return (
+        span >= config.primary_view_span * along
+        and 2.0 * float(np.median(primary.radii_px)) <= config.max_spanning_width * across
+        and primary.inlier_fraction >= config.spanning_min_inlier_fraction
+    )
 
 
 def _flag_bridged(curve: Curve2D, graph: SkeletonGraph, mask: np.ndarray) -> Curve2D:

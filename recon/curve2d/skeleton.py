@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from skimage.morphology import medial_axis, skeletonize
 
-from recon.curve2d.skeleton_bridge import find_bridges
+from recon.curve2d.skeleton_bridge import OcclusionRule, find_bridges
 from recon.curve2d.skeleton_graph import SkeletonGraph
 from recon.curve2d.skeleton_trace import build_graph
 from recon.frame import as_binary_mask
@@ -81,6 +81,19 @@ class SkeletonConfig:
             shortest secondary, 20 px, reference.md; a lone blob has almost no skeleton).
         bridge_tangent_px: Arc length over which an endpoint's outward tangent is measured
             (ours: about one branch diameter, beyond the thinning's end artefacts).
+        occlusion_gap_radii: Wider gaps, up to this many radii of the branch, are bridged when
+            the branch continues across them unchanged: a wire, a tie or a twig in front of it
+            (``recon/curve2d/skeleton_bridge.py``, :class:`OcclusionRule`); 0 disables. Ours: an
+            occluder up to a branch diameter wide. In the orchard world, wires and ties cut the
+            trunk's mask into pieces a few radii apart and the scan lost the primary.
+        occlusion_max_angle_deg: An occlusion bridge leaves the endpoint within this of its
+            outward tangent and meets a piece running within this of it (ours: half the
+            small-gap rule's angle; a crossing branch or a second trunk is not a continuation).
+        occlusion_width_ratio: The two pieces' radii differ by at most this factor (ours: the
+            width a learned mask draws varies by ~+-20 % along one branch).
+        occlusion_min_elongation: Shortest piece an occlusion bridge leaves from, in its radii
+            (ours: a trunk between two wires may be only a few radii long; a blob is shorter
+            than its diameter).
     """
 
     border_px: int = 10
@@ -94,6 +107,10 @@ class SkeletonConfig:
     bridge_max_angle_deg: float = 30.0
     bridge_min_length_px: float = 20.0
     bridge_tangent_px: float = 12.0
+    occlusion_gap_radii: float = 2.0
+    occlusion_max_angle_deg: float = 15.0
+    occlusion_width_ratio: float = 1.5
+    occlusion_min_elongation: float = 2.0
 
     def __post_init__(self) -> None:
         require_non_negative(self, "border_px", "max_hole_area_px", finite=False)
@@ -109,6 +126,15 @@ class SkeletonConfig:
             )
         if not self.bridge_tangent_px > 0.0:
             raise ValueError(f"bridge_tangent_px must be positive, got {self.bridge_tangent_px}")
+        require_non_negative(self, "occlusion_gap_radii", "occlusion_min_elongation")
+        if not 0.0 < self.occlusion_max_angle_deg <= 90.0:
+            raise ValueError(
+                f"occlusion_max_angle_deg must be in (0, 90], got {self.occlusion_max_angle_deg}"
+            )
+        if not self.occlusion_width_ratio >= 1.0:
+            raise ValueError(
+                f"occlusion_width_ratio must be >= 1, got {self.occlusion_width_ratio}"
+            )
 
 
 def preprocess_mask(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()) -> np.ndarray:
@@ -181,6 +207,12 @@ def extract_skeleton(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()
         config.bridge_max_angle_deg,
         config.bridge_min_length_px,
         config.bridge_tangent_px,
+        OcclusionRule(
+            config.occlusion_gap_radii,
+            config.occlusion_max_angle_deg,
+            config.occlusion_width_ratio,
+            config.occlusion_min_elongation,
+        ),
     )
     if not bridges:
         return graph

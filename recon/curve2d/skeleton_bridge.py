@@ -14,6 +14,19 @@ endpoint to the nearest skeleton pixel of another component when
   and its terminal edge holds a straight run to take the tangent on: a lone blob beside the
   trunk, or speckle, has almost no skeleton and is never bridged.
 
+A thin occluder in front of a branch (a trellis wire, a tie, a twig crossing the view) cuts its
+mask into pieces with wider gaps, and the pieces between two wires may be short. An *occlusion
+bridge* spans such a gap when the branch continues across it unchanged (:class:`OcclusionRule`):
+
+* the gap is at most ``gap_radii`` times the branch's radius (an occluder up to about a branch
+  diameter wide),
+* the ray leaves the endpoint within ``max_angle_deg`` of its outward tangent,
+* the piece on the far side has the same width (radius ratio at most ``width_ratio``) and runs
+  in the same direction (its skeleton within ``max_angle_deg`` of the ray), and
+* the endpoint's piece is at least ``min_elongation`` radii long.
+
+It is tried only at endpoints where the small-gap rule above finds nothing.
+
 Bridges are taken shortest gap first, at most one per pair of components (no loops).
 ``recon/curve2d/skeleton.py`` draws them into the skeleton before building the graph; the
 bridge pixels lie off the mask, and samples there are not lifted (``recon/curve2d/fit.py``).
@@ -31,14 +44,35 @@ import numpy as np
 from recon.curve2d.path_search import component_reach
 from recon.curve2d.skeleton_graph import SkeletonEdge, SkeletonGraph
 
-__all__ = ["Bridge", "find_bridges"]
+__all__ = ["Bridge", "OcclusionRule", "find_bridges"]
 
 _RAYS = 7  # rays fanned over the allowed angle (ours: ~10 deg apart for the default 30 deg)
 _RAY_STEP_PX = 0.5  # ray marching step: below a pixel, no pixel skipped
 _RAY_MARGIN_PX = 2.0  # rounding slack at both silhouette edges
+# An occlusion bridge's direction is the chord over up to this many tangent lengths of the
+# terminal edge (ours: past a cut end's corner, still the branch's own direction).
+_OCCLUSION_CHORD_TANGENTS = 4.0
 # A bridged component's skeleton is at least this many radii long (ours: two diameters; a blob's
 # skeleton is shorter than its diameter).
 _MIN_ELONGATION = 4.0
+
+
+@dataclass(frozen=True)
+class OcclusionRule:
+    """When a wider gap is an occluder in front of one branch (module docstring).
+
+    Attributes:
+        gap_radii: Largest gap, in radii of the branch at the endpoint; 0 disables.
+        max_angle_deg: Largest angle between the endpoint's outward tangent and the bridge, and
+            between the bridge and the far piece's skeleton.
+        width_ratio: Largest ratio between the two pieces' radii (either way).
+        min_elongation: Shortest skeleton of the endpoint's piece, in its radii.
+    """
+
+    gap_radii: float = 0.0
+    max_angle_deg: float = 15.0
+    width_ratio: float = 1.5
+    min_elongation: float = 2.0
 
 
 @dataclass(frozen=True)
@@ -67,6 +101,7 @@ def find_bridges(
     max_angle_deg: float,
     min_length_px: float,
     tangent_px: float,
+    occlusion: OcclusionRule | None = None,
 ) -> list[Bridge]:
     """Bridges over small gaps between skeleton components (see the module docstring).
 
@@ -84,11 +119,14 @@ def find_bridges(
         max_angle_deg: Largest angle between an endpoint's outward tangent and its bridge.
         min_length_px: Shortest skeleton (polyline length of its component) that may be bridged.
         tangent_px: Arc length over which the outward tangent at an endpoint is measured.
+        occlusion: When a wider gap is bridged as an occluder in front of one branch (None:
+            never).
 
     Returns:
         The bridges to draw, shortest gap first.
     """
-    if max_gap_px <= 0 or len(graph.edges) < 2:
+    occlusion = occlusion or OcclusionRule()
+    if (max_gap_px <= 0 and occlusion.gap_radii <= 0) or len(graph.edges) < 2:
         return []
     component, _ = component_reach(graph)
     edge_component = component[[e.start for e in graph.edges]]
@@ -107,6 +145,9 @@ def find_bridges(
     targetable = ~np.concatenate([_end_zone(graph, e) for e in graph.edges])
     u_min, v_min, u_max, v_max = interior_uv
     angles = np.radians(np.linspace(-max_angle_deg, max_angle_deg, _RAYS))
+    occlusion_angles = np.radians(
+        np.linspace(-occlusion.max_angle_deg, occlusion.max_angle_deg, _RAYS)
+    )
     proposals: list[tuple[float, int, int, Bridge]] = []
     for edge in graph.edges:
         for node, path, path_radii in (
@@ -123,19 +164,26 @@ def find_bridges(
                 continue
             own_label = labels[end[1], end[0]]
             radius = float(np.median(path_radii[: max(2, int(tangent_px))]))
-            if edge.length_px < radius + tangent_px or lengths[own] < _MIN_ELONGATION * radius:
-                continue  # no straight run to take a tangent on, or blob-like: not a branch end
+            if edge.length_px < radius + tangent_px:
+                continue  # no straight run to take a tangent on
             outward = _outward_tangent(path.astype(float), radius, tangent_px)
             if outward is None:
                 continue
-            hit = _shortest_gap_ray(labels, end, outward, angles, own_label, radius, max_gap_px)
-            if hit is None:
+            found = None
+            if max_gap_px > 0 and lengths[own] >= _MIN_ELONGATION * radius:  # else blob-like
+                found = _bridge_target(
+                    labels, end, outward, angles, own_label, radius, max_gap_px,
+                    pixels, pixel_label, owner != own, targetable,
+                )  # fmt: skip
+            if found is None and occlusion.gap_radii > 0:
+                found = _occlusion_target(
+                    labels, path, edge.length_px, occlusion_angles, own_label, lengths[own],
+                    max_gap_px, tangent_px, pixels, pixel_label, owner != own, targetable,
+                    occlusion,
+                )  # fmt: skip
+            if found is None:
                 continue
-            gap, entry, label = hit
-            on_label = np.flatnonzero((pixel_label == label) & (owner != own) & targetable)
-            if len(on_label) == 0:
-                continue
-            target = on_label[np.argmin(np.linalg.norm(pixels[on_label] - entry, axis=1))]
+            gap, target = found
             start = _pixel_at_arc(path, radius)
             bridge = Bridge(start.astype(int), pixels[target].astype(int), radius, gap)
             proposals.append((gap, int(own), int(owner[target]), bridge))
@@ -155,6 +203,112 @@ def find_bridges(
             parent[ra] = rb
             bridges.append(bridge)
     return bridges
+
+
+def _bridge_target(
+    labels: np.ndarray,
+    end: np.ndarray,
+    outward: np.ndarray,
+    angles: np.ndarray,
+    own_label: int,
+    radius_px: float,
+    max_gap_px: float,
+    pixels: np.ndarray,
+    pixel_label: np.ndarray,
+    other_component: np.ndarray,
+    targetable: np.ndarray,
+) -> tuple[float, int] | None:
+    """(gap, index of the skeleton pixel bridged to) across the shortest gap within
+    ``max_gap_px`` from the endpoint ``end``, if any: the other component's targetable skeleton
+    pixel nearest to where the ray enters its silhouette."""
+    hit = _shortest_gap_ray(labels, end, outward, angles, own_label, radius_px, max_gap_px)
+    if hit is None:
+        return None
+    gap, entry, label = hit
+    on_label = np.flatnonzero((pixel_label == label) & other_component & targetable)
+    if len(on_label) == 0:
+        return None
+    return gap, int(on_label[np.argmin(np.linalg.norm(pixels[on_label] - entry, axis=1))])
+
+
+def _occlusion_target(
+    labels: np.ndarray,
+    path: np.ndarray,
+    edge_length_px: float,
+    angles: np.ndarray,
+    own_label: int,
+    own_length_px: float,
+    max_gap_px: float,
+    tangent_px: float,
+    pixels: np.ndarray,
+    pixel_label: np.ndarray,
+    other_component: np.ndarray,
+    targetable: np.ndarray,
+    rule: OcclusionRule,
+) -> tuple[float, int] | None:
+    """:func:`_bridge_target` for an occlusion bridge (:class:`OcclusionRule`), or None.
+
+    Args:
+        path: (P, 2) the terminal edge's skeleton pixels, from the endpoint.
+        edge_length_px: Its polyline length.
+
+    Directions and widths are taken over the branch's end, not at the skeleton's tip: a wide
+    branch's skeleton bends into a corner of a cut end, so the outward direction is the chord
+    over the terminal edge (up to ``_OCCLUSION_CHORD_TANGENTS`` tangent lengths) and widths are
+    measured across the mask, ``tangent_px`` back from the tip.
+    """
+    end = path[0]
+    chord = min(edge_length_px, _OCCLUSION_CHORD_TANGENTS * tangent_px)
+    outward = _outward_tangent(path.astype(float), 0.0, chord)
+    if outward is None:
+        return None
+    back = _pixel_at_arc(path, min(tangent_px, 0.5 * edge_length_px)).astype(float)
+    half_width, offset = _cross_section(labels, own_label, back, outward)
+    normal = np.array([-outward[1], outward[0]])
+    centre = back + offset * normal  # on the branch's axis
+    gap_limit = rule.gap_radii * half_width
+    if gap_limit <= max_gap_px or own_length_px < rule.min_elongation * half_width:
+        return None
+    hit = _shortest_gap_ray(labels, end, outward, angles, own_label, half_width, gap_limit)
+    if hit is None:
+        return None
+    gap, entry, label = hit
+    # The far piece, one radius past the gap on the branch's axis: as wide and centred on it.
+    along = float((entry - centre) @ outward) + half_width
+    far_half_width, far_offset = _cross_section(labels, label, centre + along * outward, outward)
+    if not (
+        far_half_width > 0
+        and max(far_half_width, half_width) <= rule.width_ratio * min(far_half_width, half_width)
+        and abs(far_offset) <= along * np.tan(np.radians(rule.max_angle_deg)) + _RAY_MARGIN_PX
+    ):
+        return None  # another width, or off to one side: not the same branch going on
+    on_label = np.flatnonzero((pixel_label == label) & other_component & targetable)
+    if len(on_label) == 0:
+        return None
+    return gap, int(on_label[np.argmin(np.linalg.norm(pixels[on_label] - entry, axis=1))])
+
+
+def _cross_section(
+    labels: np.ndarray, label: int, point: np.ndarray, direction: np.ndarray
+) -> tuple[float, float]:
+    """(half width, centre offset) in pixels of mask component ``label`` across ``direction``
+    at ``point``: the run of its pixels through ``point`` perpendicular to ``direction``; the
+    offset is the run's centre from ``point``, positive to the left of ``direction``. (0, 0)
+    when ``point`` is not on the component."""
+    h, w = labels.shape
+    normal = np.array([-direction[1], direction[0]])
+    steps = np.arange(0.0, float(max(h, w)), _RAY_STEP_PX)
+    extents = []
+    for sign in (1.0, -1.0):
+        uv = np.rint(point[None, :] + sign * steps[:, None] * normal[None, :]).astype(int)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        on = inside & (labels[np.clip(uv[:, 1], 0, h - 1), np.clip(uv[:, 0], 0, w - 1)] == label)
+        off = np.flatnonzero(~on)
+        if len(off) and off[0] == 0:
+            return 0.0, 0.0
+        extents.append(float(steps[off[0]]) if len(off) else float(steps[-1]))
+    left, right = extents
+    return 0.5 * (left + right), 0.5 * (left - right)
 
 
 def _shortest_gap_ray(

@@ -52,6 +52,17 @@ class Curve2DConfig:
         min_primary_elongation: Reject a primary whose length is below this many mean diameters
             (ours: a full or blob-like mask is not a branch; the paper's primary spans the
             220 px tall view with a radius of at most ~16 px, an elongation of ~7).
+        primary_view_span: A primary whose pixels span at least this fraction of the view's
+            interior along the scan direction passes the elongation test whatever its width, if
+            it is at most ``max_spanning_width`` of the interior across it (ours: a trunk close
+            to the camera is wider than a fifth of its length in view and is still a branch; in
+            the orchard world, trunks of 27-33 px radius filling the 220 px tall view were
+            rejected and the scans lost; a blob does not cross the view, a full mask is wider).
+        max_spanning_width: Widest such primary, as a fraction of the interior's width across
+            the scan direction (ours: half the view).
+        spanning_min_inlier_fraction: Fewest of such a primary's skeleton pixels within the
+            inlier threshold of its curve (ours: a wide trunk's skeleton is smooth, ~1.0; the
+            skeleton of a 50 % speckle mask that crosses the view, 0.86).
         min_secondary_length_px: Shortest secondary curve (reference.md: 20 px).
         min_secondary_inlier_fraction: Fewest of a secondary path's pixels within the inlier
             threshold of its curve (ours; the paper asks for an inlier rate "high enough").
@@ -87,6 +98,9 @@ class Curve2DConfig:
     radius_fence_iqr: float = 1.5
     min_primary_length_px: float = 40.0
     min_primary_elongation: float = 4.0
+    primary_view_span: float = 0.9
+    max_spanning_width: float = 0.5
+    spanning_min_inlier_fraction: float = 0.95
     min_secondary_length_px: float = 20.0
     min_secondary_inlier_fraction: float = 0.8
     max_secondary_bend_deg: float = 120.0
@@ -117,6 +131,9 @@ class Curve2DConfig:
         require_non_negative(
             self, "min_primary_length_px", "min_primary_elongation", "min_secondary_length_px"
         )
+        for name in ("primary_view_span", "max_spanning_width", "spanning_min_inlier_fraction"):
+            if not 0.0 < getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
         if not 0.0 < self.max_secondary_bend_deg <= 180.0:
             raise ValueError(
                 f"max_secondary_bend_deg must be in (0, 180], got {self.max_secondary_bend_deg}"
