@@ -21,8 +21,9 @@ bridge* spans such a gap when the branch continues across it unchanged (:class:`
 * the gap is at most ``gap_radii`` times the branch's radius (an occluder up to about a branch
   diameter wide),
 * the ray leaves the endpoint within ``max_angle_deg`` of its outward tangent,
-* the piece on the far side has the same width (radius ratio at most ``width_ratio``) and runs
-  in the same direction (its skeleton within ``max_angle_deg`` of the ray), and
+* the piece on the far side has the same width across the mask (ratio at most
+  ``width_ratio``) and is centred on the near piece's axis (off it by at most ``max_angle_deg``
+  as seen from the near piece), and
 * the endpoint's piece is at least ``min_elongation`` radii long.
 
 It is tried only at endpoints where the small-gap rule above finds nothing.
@@ -63,9 +64,9 @@ class OcclusionRule:
 
     Attributes:
         gap_radii: Largest gap, in radii of the branch at the endpoint; 0 disables.
-        max_angle_deg: Largest angle between the endpoint's outward tangent and the bridge, and
-            between the bridge and the far piece's skeleton.
-        width_ratio: Largest ratio between the two pieces' radii (either way).
+        max_angle_deg: Largest angle between the near piece's axis and the bridge, and between
+            that axis and the far piece's centre seen from the near piece.
+        width_ratio: Largest ratio between the two pieces' widths (either way).
         min_elongation: Shortest skeleton of the endpoint's piece, in its radii.
     """
 
@@ -225,6 +226,20 @@ def _bridge_target(
     if hit is None:
         return None
     gap, entry, label = hit
+    return _nearest_target(gap, entry, label, pixels, pixel_label, other_component, targetable)
+
+
+def _nearest_target(
+    gap: float,
+    entry: np.ndarray,
+    label: int,
+    pixels: np.ndarray,
+    pixel_label: np.ndarray,
+    other_component: np.ndarray,
+    targetable: np.ndarray,
+) -> tuple[float, int] | None:
+    """(gap, index of the other component's targetable skeleton pixel on mask component
+    ``label`` nearest to ``entry``), or None when it has none."""
     on_label = np.flatnonzero((pixel_label == label) & other_component & targetable)
     if len(on_label) == 0:
         return None
@@ -282,10 +297,7 @@ def _occlusion_target(
         and abs(far_offset) <= along * np.tan(np.radians(rule.max_angle_deg)) + _RAY_MARGIN_PX
     ):
         return None  # another width, or off to one side: not the same branch going on
-    on_label = np.flatnonzero((pixel_label == label) & other_component & targetable)
-    if len(on_label) == 0:
-        return None
-    return gap, int(on_label[np.argmin(np.linalg.norm(pixels[on_label] - entry, axis=1))])
+    return _nearest_target(gap, entry, label, pixels, pixel_label, other_component, targetable)
 
 
 def _cross_section(
