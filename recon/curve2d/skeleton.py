@@ -86,10 +86,11 @@ class SkeletonConfig:
             (``recon/curve2d/skeleton_bridge.py``, :class:`OcclusionRule`); 0 disables. Ours: an
             occluder up to a branch diameter wide. In the orchard world, wires and ties cut the
             trunk's mask into pieces a few radii apart and the scan lost the primary.
-        occlusion_max_angle_deg: An occlusion bridge leaves the endpoint within this of its
-            outward tangent and meets a piece running within this of it (ours: half the
-            small-gap rule's angle; a crossing branch or a second trunk is not a continuation).
-        occlusion_width_ratio: The two pieces' radii differ by at most this factor (ours: the
+        occlusion_max_angle_deg: An occlusion bridge leaves the near piece within this of its
+            axis, and the far piece's centre lies within this of that axis seen from the near
+            piece (ours: half the small-gap rule's angle; a crossing branch or a second trunk
+            beside it is not a continuation).
+        occlusion_width_ratio: The two pieces' widths differ by at most this factor (ours: the
             width a learned mask draws varies by ~+-20 % along one branch).
         occlusion_min_elongation: Shortest piece an occlusion bridge leaves from, in its radii
             (ours: a trunk between two wires may be only a few radii long; a blob is shorter
