@@ -21,6 +21,7 @@ from agents.ppo import (
     load_model,
     load_policy,
 )
+from branch_gym.env.reward import RewardConfig
 from branch_gym.evaluation.episodes import run_episode, run_trial
 from branch_gym.scan import ScanConfig
 from branch_gym.training.callbacks import TorchThreadsCallback, ValueWarmupCallback, scan_metrics
@@ -131,6 +132,11 @@ def test_config_validation_names_the_field() -> None:
     cheap_time = TrainConfig(time_penalty_per_s=0.002)
     assert cheap_time.env_kwargs()["reward"].time_penalty_per_s == 0.002
     assert "reward" not in TrainConfig().env_kwargs()
+    with pytest.raises(ValueError, match="spurious_penalty"):
+        TrainConfig(spurious_penalty=-0.1)
+    cheap_false = TrainConfig(spurious_penalty=0.1, duplicate_penalty=0.2).env_kwargs()["reward"]
+    assert (cheap_false.spurious_penalty, cheap_false.duplicate_penalty) == (0.1, 0.2)
+    assert cheap_false.time_penalty_per_s == RewardConfig().time_penalty_per_s
     assert TrainConfig.from_dict(json.loads(json.dumps(cheap_time.to_dict()))) == cheap_time
     assert PPOConfig(target_kl=0.02).sb3_kwargs()["target_kl"] == 0.02
     config = TrainConfig(n_envs=2, end_height_m=0.5, ppo=PPOConfig(n_steps=64, target_kl=0.02))

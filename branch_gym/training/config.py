@@ -138,6 +138,11 @@ class TrainConfig:
         time_penalty_per_s: Penalty per second of scan time
             (:class:`branch_gym.env.reward.RewardConfig`); None keeps the env's 0.01, which
             values a found branch at 100 s of scan time.
+        spurious_penalty: Reward per spurious side branch (``RewardConfig``); None keeps the
+            env's 0.5 (half a found branch). The orchard recipes lower it: issue 34's
+            must-shows count missed branches first and allow a spurious point, and from pixels
+            a turn adds ~3 false branches per branch it finds (docs/results/learned_policies.md).
+        duplicate_penalty: Reward per duplicate of a matched branch; None keeps the env's 0.5.
         normalize: Wrap the training envs in ``VecNormalize`` (running mean/std of the
             observation vector and of the return). Our choice: off, the observation is
             already scaled to about [0, 1] and the rewards are O(1).
@@ -181,6 +186,8 @@ class TrainConfig:
     eval_every: int = 10_000
     eval_trees: int = 10
     time_penalty_per_s: float | None = None
+    spurious_penalty: float | None = None
+    duplicate_penalty: float | None = None
     normalize: bool = False
     recurrent: bool = False
     worker_rollouts: bool = False
@@ -236,8 +243,13 @@ class TrainConfig:
                 kwargs[name] = getattr(self, name)
         if not self.render_tracking_frames:
             kwargs["render_tracking_frames"] = False
-        if self.time_penalty_per_s is not None:
-            kwargs["reward"] = RewardConfig(time_penalty_per_s=self.time_penalty_per_s)
+        reward = {
+            name: getattr(self, name)
+            for name in ("time_penalty_per_s", "spurious_penalty", "duplicate_penalty")
+            if getattr(self, name) is not None
+        }
+        if reward:
+            kwargs["reward"] = RewardConfig(**reward)
         return kwargs
 
     def to_dict(self) -> dict[str, Any]:
