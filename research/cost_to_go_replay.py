@@ -24,7 +24,12 @@ import numpy as np
 import branch_gym  # noqa: F401  (registers the env ids)
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG, VECTOR_KEY, VectorField
 from branch_gym.training.imitation.config import CONFIG_FILE, ImitationConfig
-from branch_gym.training.imitation.cost_to_go import BranchTask, HoldAgent, play_branch
+from branch_gym.training.imitation.cost_to_go import (
+    BranchTask,
+    HoldAgent,
+    branch_outcome,
+    play_branch,
+)
 from branch_gym.training.imitation.data import RoundData, episode_slices, round_path
 
 LOSS_MARGIN = 0.5  # our choice: half a found branch, as research/cost_to_go_labels.py
@@ -59,15 +64,14 @@ def play(env: gym.Env, agent: HoldAgent, case: dict, action: int) -> dict:
     """One branch to its end (:func:`play_branch`): return, failure, matched, spurious and
     duplicate branches, scan time."""
     task = BranchTask(case["seed"], tuple(case["prefix"]), case["expected"], action, None)
-    total, info = play_branch(env, task, agent)
-    metrics = info.get("final_metrics", info["metrics"])
+    outcome = branch_outcome(*play_branch(env, task, agent))
     return {
-        "return": total,
-        "failure": info["failure"] or "-",
-        "matched": metrics["n_matched"],
-        "spurious": metrics["n_spurious"],
-        "duplicates": metrics["n_duplicates"],
-        "scan_time_s": info["scan_time_s"],
+        "return": outcome["return"],
+        "failure": outcome["failure"] or "-",
+        "matched": outcome["n_matched"],
+        "spurious": outcome["n_spurious"],
+        "duplicates": outcome["n_duplicates"],
+        "scan_time_s": outcome["scan_time_s"],
     }
 
 

@@ -9,13 +9,16 @@ import pytest
 import branch_gym  # noqa: F401  (registers the env ids)
 from agents.privileged import PrivilegedAgent
 from branch_gym.env.layout import VECTOR_KEY, VectorField
+from branch_gym.env.reward import RewardConfig
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.imitation import ImitationConfig, RoundData, fit_student, new_student
 from branch_gym.training.imitation.cost_to_go import (
     BranchTask,
     HoldAgent,
+    branch_outcome,
     distinct_actions,
+    play_branch,
     run_branch,
 )
 
@@ -70,6 +73,20 @@ def test_a_blind_rotation_is_priced_above_holding_when_a_branch_hides_behind(env
     expert = PrivilegedAgent.for_env(env)
     task = BranchTask(0, (), observation[VECTOR_KEY], 0, None, True, reset_options=options)
     assert run_branch(env, task, expert) > returns[0] + 0.5
+
+
+def test_a_branch_outcome_prices_again_to_its_return(env):
+    """The logged end of a branch (counts, scan time, failure) gives back its return."""
+    options = {"tree": _tree_with_a_branch_behind_the_primary(env), "branch_value_s": PRICE_S}
+    observation, _ = env.reset(seed=0, options=options)
+    task = BranchTask(0, (), observation[VECTOR_KEY], 4, None, reset_options=options)
+    outcome = branch_outcome(*play_branch(env, task, HoldAgent.for_env(env)))
+    assert outcome["n_matched"] == 1 and outcome["scan_time_s"] > 0.0  # the turn shows it
+    counts = type("Counts", (), outcome)
+    repriced = RewardConfig().episode_return(
+        counts, outcome["scan_time_s"], bool(outcome["failure"]), 1.0 / PRICE_S
+    )
+    assert repriced == pytest.approx(outcome["return"], abs=1e-9)
 
 
 def test_a_replay_that_diverges_is_an_error(env):
@@ -135,6 +152,8 @@ def test_a_cost_to_go_run_prices_sampled_states_and_keeps_its_branches(tmp_path)
     assert len(data.priced()) == 1  # one state of the episode, every action valued
     branches = (tmp_path / "round_0.branches.jsonl").read_text()
     assert len(branches.splitlines()) == 5  # five distinct actions at the state
+    # Each branch's end is logged with its return, so that it can be priced again.
+    assert all(json.loads(line)["scan_time_s"] > 0.0 for line in branches.splitlines())
     row = json.loads((tmp_path / ROUNDS_LOG).read_text().splitlines()[0])
     assert row["priced_states"] == 1 and 0.0 <= row["priced_rotation_best_share"] <= 1.0
     # A round interrupted after its branches ran: resumed, it plays the episode again but

@@ -119,6 +119,32 @@ def run_branch(env: Any, task: BranchTask, rollout: Any) -> float:
     return play_branch(env, task, rollout)[0]
 
 
+def branch_outcome(total: float, info: dict[str, Any]) -> dict[str, Any]:
+    """What a branch's end holds besides its return, for the round's branch log.
+
+    With the scan time and the counts, a label can be priced again at another price of scan time
+    or of a false branch without replaying it (the return telescopes to the final score:
+    :meth:`branch_gym.env.reward.RewardConfig.episode_return`).
+
+    Args:
+        total: The branch's return (:func:`play_branch`).
+        info: The env's ``info`` of the branch's last step.
+
+    Returns:
+        ``return``, ``scan_time_s`` (s), ``n_matched``, ``n_spurious``, ``n_duplicates`` and
+        ``failure`` (the failure's name, or "" for a scan that did not fail).
+    """
+    metrics = info.get("final_metrics", info["metrics"])
+    return {
+        "return": float(total),
+        "scan_time_s": float(info["scan_time_s"]),
+        "n_matched": int(metrics["n_matched"]),
+        "n_spurious": int(metrics["n_spurious"]),
+        "n_duplicates": int(metrics["n_duplicates"]),
+        "failure": info["failure"] or "",
+    }
+
+
 def play_branch(env: Any, task: BranchTask, rollout: Any) -> tuple[float, dict[str, Any]]:
     """Play one branch (:class:`BranchTask`) in ``env`` to the episode's end.
 

@@ -19,7 +19,12 @@ from agents.privileged import PrivilegedAgent
 from branch_gym.evaluation.episodes import run_episode
 from branch_gym.threads import pin_worker_threads
 from branch_gym.training.config import TrainConfig
-from branch_gym.training.imitation.cost_to_go import BranchTask, HoldAgent, run_branch
+from branch_gym.training.imitation.cost_to_go import (
+    BranchTask,
+    HoldAgent,
+    branch_outcome,
+    play_branch,
+)
 from branch_gym.training.imitation.data import RoundData
 
 _WORKER: dict[str, Any] = {}
@@ -124,8 +129,9 @@ def episode_task(args: tuple[int, str | None]) -> tuple[RoundData, dict[str, Any
     return label_episode(*args)
 
 
-def branch_value(task: BranchTask) -> float:
-    """The return of one cost-to-go branch in this worker (for ``pool.map``).
+def branch_value(task: BranchTask) -> dict[str, Any]:
+    """The return of one cost-to-go branch in this worker (for ``pool.map``), with its end
+    (:func:`~branch_gym.training.imitation.cost_to_go.branch_outcome`).
 
     The roll-out is the task's student, else the expert where ``rollout_expert``, else
     :class:`~branch_gym.training.imitation.cost_to_go.HoldAgent` (before the first student).
@@ -136,7 +142,7 @@ def branch_value(task: BranchTask) -> float:
         rollout = _WORKER["expert"]
     else:
         rollout = _WORKER["hold"]
-    return run_branch(_WORKER["env"], task, rollout)
+    return branch_outcome(*play_branch(_WORKER["env"], task, rollout))
 
 
 class RayLabellers:

@@ -234,10 +234,10 @@ def _price_states(
     pending = [task for _, _, tasks in jobs for task in tasks if _branch_key(task) not in done]
     bar = tqdm(total=len(pending), desc="cost-to-go branches") if progress else None
     with open(log, "a") as handle:
-        for task, value in zip(pending, pool.map(branch_value, pending), strict=True):
-            done[_branch_key(task)] = value
+        for task, outcome in zip(pending, pool.map(branch_value, pending), strict=True):
+            done[_branch_key(task)] = outcome["return"]
             tree_seed, step, action = _branch_key(task)
-            row = {"tree_seed": tree_seed, "step": step, "action": action, "return": value}
+            row = {"tree_seed": tree_seed, "step": step, "action": action, **outcome}
             handle.write(json.dumps(row) + "\n")
             handle.flush()
             if bar is not None:
