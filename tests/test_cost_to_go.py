@@ -19,7 +19,6 @@ from branch_gym.training.imitation.cost_to_go import (
     branch_outcome,
     distinct_actions,
     play_branch,
-    run_branch,
 )
 
 SCAN_TOP_M = 0.42
@@ -64,7 +63,7 @@ def test_a_blind_rotation_is_priced_above_holding_when_a_branch_hides_behind(env
     returns = {}
     for group in distinct_actions(env, 0.0):
         task = BranchTask(0, (), observation[VECTOR_KEY], group[0], None, reset_options=options)
-        returns[group[0]] = run_branch(env, task, hold)
+        returns[group[0]] = play_branch(env, task, hold)[0]
     rotations = [returns[a] for a in (1, 2, 4, 5)]
     # Holding never shows the branch; a rotation that shows it is worth about a branch (1.0)
     # less its scan time (a second is 1 / 100 of a branch).
@@ -72,7 +71,7 @@ def test_a_blind_rotation_is_priced_above_holding_when_a_branch_hides_behind(env
     # Rolled out by the privileged expert, holding loses little: it rotates for the branch next.
     expert = PrivilegedAgent.for_env(env)
     task = BranchTask(0, (), observation[VECTOR_KEY], 0, None, True, reset_options=options)
-    assert run_branch(env, task, expert) > returns[0] + 0.5
+    assert play_branch(env, task, expert)[0] > returns[0] + 0.5
 
 
 def test_a_branch_outcome_prices_again_to_its_return(env):
@@ -94,7 +93,7 @@ def test_a_replay_that_diverges_is_an_error(env):
     wrong = observation[VECTOR_KEY].copy()
     wrong[VectorField.PROGRESS] += 0.5
     with pytest.raises(RuntimeError, match="diverged"):
-        run_branch(env, BranchTask(3, (), wrong, 0, None), HoldAgent.for_env(env))
+        play_branch(env, BranchTask(3, (), wrong, 0, None), HoldAgent.for_env(env))
 
 
 def test_round_data_carries_action_values_and_rounds_without_them_concatenate(tmp_path):
@@ -173,7 +172,7 @@ def test_ray_labellers_label_as_this_process_does():
     from branch_gym.evaluation.ray_backend import ray_session
     from branch_gym.training.imitation.labels import (
         RayLabellers,
-        branch_value,
+        branch_task,
         episode_task,
         init_worker,
     )
@@ -184,8 +183,8 @@ def test_ray_labellers_label_as_this_process_does():
     with ray_session(None, 1) as ray:
         labellers = RayLabellers(ray, FAST.to_dict())
         [(there, _)] = labellers.map(episode_task, [(7, None)])
-        [value] = labellers.map(branch_value, [task])
+        [value] = labellers.map(branch_task, [task])
     np.testing.assert_array_equal(there.expert_actions, here.expert_actions)
     for key, array in here.observations.items():
         np.testing.assert_array_equal(there.observations[key], array)
-    assert value == branch_value(task)
+    assert value == branch_task(task)

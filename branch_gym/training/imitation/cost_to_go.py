@@ -20,7 +20,8 @@ the rotation's scan time.
 The env has no state copy: a branch replays the episode's recorded actions up to the sampled
 step from ``reset(seed)`` (the env is deterministic: same seed, same trajectory; the replayed
 observation is checked against the recorded one), then takes its action. Every branch is an
-independent task (:func:`branch_task`), run on the labelling process pool.
+independent task (:class:`BranchTask`; ``labels.branch_task`` runs it on the labelling
+process pool).
 
 The fit (:func:`expected_regret`) minimises the policy's expected regret on the priced states:
 ``sum_a pi(a | s) (max_b Q(s, b) - Q(s, a))``, cost-sensitive classification at the price the
@@ -112,11 +113,6 @@ def distinct_actions(env: Any, current_angle_deg: float) -> list[list[int]]:
         effect = current_angle_deg if abs(target - current_angle_deg) <= tolerance else target
         groups.setdefault(effect, []).append(action)
     return list(groups.values())
-
-
-def run_branch(env: Any, task: BranchTask, rollout: Any) -> float:
-    """The return of one branch (:class:`BranchTask`) in ``env``: :func:`play_branch`'s."""
-    return play_branch(env, task, rollout)[0]
 
 
 def branch_outcome(total: float, info: dict[str, Any]) -> dict[str, Any]:

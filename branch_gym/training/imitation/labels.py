@@ -2,7 +2,7 @@
 
 Episodes run in worker processes (:func:`init_worker` builds the run's env and its privileged
 expert once per process); :func:`label_episode` plays one tree and returns its labels and a
-summary for ``rounds.jsonl``; :func:`branch_value` prices one action of a sampled state
+summary for ``rounds.jsonl``; :func:`branch_task` prices one action of a sampled state
 (:mod:`~branch_gym.training.imitation.cost_to_go`).
 """
 
@@ -129,7 +129,7 @@ def episode_task(args: tuple[int, str | None]) -> tuple[RoundData, dict[str, Any
     return label_episode(*args)
 
 
-def branch_value(task: BranchTask) -> dict[str, Any]:
+def branch_task(task: BranchTask) -> dict[str, Any]:
     """The return of one cost-to-go branch in this worker (for ``pool.map``), with its end
     (:func:`~branch_gym.training.imitation.cost_to_go.branch_outcome`).
 
@@ -148,7 +148,7 @@ def branch_value(task: BranchTask) -> dict[str, Any]:
 class RayLabellers:
     """``pool.map`` over Ray tasks: each Ray worker process sets up the run's env once.
 
-    The labelling functions (:func:`episode_task`, :func:`branch_value`) run as Ray tasks of one
+    The labelling functions (:func:`episode_task`, :func:`branch_task`) run as Ray tasks of one
     CPU each, in order of submission, results in order. Student models are read from the run
     folder by path: on a multi-node cluster the run folder must be on a filesystem every node
     mounts at the same path.

@@ -51,7 +51,7 @@ from branch_gym.training.imitation.fit import (
 )
 from branch_gym.training.imitation.labels import (
     RayLabellers,
-    branch_value,
+    branch_task,
     episode_task,
     init_worker,
 )
@@ -234,7 +234,7 @@ def _price_states(
     pending = [task for _, _, tasks in jobs for task in tasks if _branch_key(task) not in done]
     bar = tqdm(total=len(pending), desc="cost-to-go branches") if progress else None
     with open(log, "a") as handle:
-        for task, outcome in zip(pending, pool.map(branch_value, pending), strict=True):
+        for task, outcome in zip(pending, pool.map(branch_task, pending), strict=True):
             done[_branch_key(task)] = outcome["return"]
             tree_seed, step, action = _branch_key(task)
             row = {"tree_seed": tree_seed, "step": step, "action": action, **outcome}
