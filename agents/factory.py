@@ -13,6 +13,7 @@ spec                       agent
                            the price of scan time (v1, v2) acts at SECONDS per found branch
 ``privileged``             :class:`agents.privileged.PrivilegedAgent`: reads the ground truth
                            (simulation only), the upper bound of a policy
+``privileged:home``        the same, turning back to 0 once nothing is pending (an expert)
 =========================  =====================================================================
 """
 
@@ -26,14 +27,13 @@ from agents.disagreement import DisagreementAgent, parse_disagreement_spec
 from agents.ftl import SPEC_KIND as FTL_KIND
 from agents.ftl import FtlAgent, parse_ftl_spec
 from agents.ppo import PPO_SPEC_PREFIX, check_ppo_spec, load_policy, spec_env_id, split_price
-from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
-from agents.privileged import PrivilegedAgent
+from agents.privileged import PrivilegedAgent, parse_privileged_spec
 from agents.protocol import Agent
 from branch_gym.env.versions import env_version
 
 SPEC_FORMS = (
     "'none', 'periodic:ANGLE_DEG:FREQ', 'ftl:ANGLE_DEG:FREQ', 'disagreement[:ANGLE_DEG]', "
-    "'privileged' or 'ppo:PATH'"
+    "'privileged[:home]' or 'ppo:PATH'"
 )
 
 
@@ -53,7 +53,11 @@ def check_spec(spec: str) -> None:
         parse_disagreement_spec(spec)
     elif spec.split(":")[0] == FTL_KIND:
         parse_ftl_spec(spec)
-    elif spec not in (NO_ROTATION_SPEC, PRIVILEGED_KIND) and parse_periodic_spec(spec) is None:
+    elif (
+        spec != NO_ROTATION_SPEC
+        and parse_privileged_spec(spec) is None
+        and parse_periodic_spec(spec) is None
+    ):
         raise ValueError(f"unknown policy spec {spec!r}: expected {SPEC_FORMS}")
 
 
@@ -98,8 +102,9 @@ def make_agent(spec: str, env: Any) -> Agent:
         return FtlAgent.for_env(env, ftl)
     if spec == NO_ROTATION_SPEC:
         return NoRotationAgent.for_env(env)
-    if spec == PRIVILEGED_KIND:
-        return PrivilegedAgent.for_env(env)
+    privileged = parse_privileged_spec(spec)
+    if privileged is not None:
+        return PrivilegedAgent.for_env(env, privileged)
     periodic = parse_periodic_spec(spec)
     if periodic is None:
         raise ValueError(f"unknown policy spec {spec!r}: expected {SPEC_FORMS}")

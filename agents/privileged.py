@@ -10,7 +10,12 @@ rotation costs scan time in proportion to its angle), or, where none does, to th
 the worst-placed branch best. With nothing pending it holds. Its points on the missed-vs-scan-time
 plot bound what a policy that sees only the pipeline's observation can reach.
 
-Spec (``agents.factory``): ``privileged``. It needs a single, unwrapped-able env (not vectorised).
+With ``return_home`` it turns back to the home angle (0) once nothing is pending, where the
+paper's schedule comes back too: an expert for students that cannot see what is pending, who
+would otherwise learn to stay at a turned angle that hides what the home view shows.
+
+Specs (``agents.factory``): ``privileged``, ``privileged:home`` (``return_home``). It needs a
+single, unwrapped-able env (not vectorised).
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from branch_gym.sim.validation import require_positive
 from recon.metrics import TruthIndex, evaluate, index_truth
 
 SPEC_KIND = "privileged"
+HOME_SPEC = "privileged:home"
 _VIEW_DECIMALS = 6
 
 
@@ -42,11 +48,15 @@ class PrivilegedConfig:
             scan all lie within 45 deg of the home optical axis, issue 13).
         view_band_fov: Branches whose base lies within this many vertical FoVs of the camera
             height are the ones in view (our choice: 0.5, the image's half height).
+        return_home: With nothing pending, turn back to 0 instead of holding (our choice for
+            the bound: False, the cheapest scan; True for an expert that students copy, issue
+            34: students that held a turned angle hid branches the home view shows).
     """
 
     candidate_angles_deg: tuple[float, ...] = DISCRETE_ANGLES_DEG
     good_view_deg: float = 45.0
     view_band_fov: float = 0.5
+    return_home: bool = False
 
     def __post_init__(self) -> None:
         if not self.candidate_angles_deg or 0.0 not in self.candidate_angles_deg:
@@ -90,12 +100,10 @@ class PrivilegedAgent(BaselineAgent):
         """The target angle for the session's current state (deg)."""
         current = float(self.session.angle_deg)
         config = self.config
-        return choose_angle_deg(
-            self._pending_directions_rad(),
-            current,
-            config.candidate_angles_deg,
-            config.good_view_deg,
-        )
+        pending = self._pending_directions_rad()
+        if config.return_home and len(pending) == 0:
+            return 0.0
+        return choose_angle_deg(pending, current, config.candidate_angles_deg, config.good_view_deg)
 
     def _pending_directions_rad(self) -> np.ndarray:
         """Headings (rad, 0 along +y) of the in-view branches the model does not match yet."""
@@ -126,6 +134,15 @@ class PrivilegedAgent(BaselineAgent):
         if len(vectors) != 1:
             raise ValueError("the privileged policy acts in a single env, not a batch")
         return np.array([self.target_angle_deg()]), state
+
+
+def parse_privileged_spec(spec: str) -> PrivilegedConfig | None:
+    """The config of ``privileged`` or ``privileged:home``; None for any other spec."""
+    if spec == SPEC_KIND:
+        return PrivilegedConfig()
+    if spec == HOME_SPEC:
+        return PrivilegedConfig(return_home=True)
+    return None
 
 
 def choose_angle_deg(

@@ -39,6 +39,8 @@ def test_bad_settings_are_named():
         ImitationConfig(train=FAST, rounds=0)
     with pytest.raises(ValueError, match="rotation_weight"):
         ImitationConfig(train=FAST, rotation_weight=0.0)
+    with pytest.raises(ValueError, match="expert"):
+        ImitationConfig(train=FAST, expert="periodic:22.5:1.5")
 
 
 def test_round_data_round_trips_and_a_corrupt_file_is_named(tmp_path):
@@ -267,6 +269,11 @@ def test_the_recipe_files_hold_the_shipped_students_fit_settings():
         assert recorded == {k: getattr(config, k) for k in recorded}, recipe
     v2 = ImitationConfig.from_dict(read_config_file(root / "configs" / "dagger_v2.json"))
     assert v2.train.env_id == "BranchScanDiscrete-v2" and v2.rotation_weight == 4.0
+    assert v2.expert == "privileged"  # the shipped students' expert held a turned angle
+    orchard = ImitationConfig.from_dict(
+        read_config_file(root / "configs" / "aggrevate_orchard.json")
+    )
+    assert orchard.expert == "privileged:home"
 
 
 def test_the_cli_layers_defaults_the_recipe_and_the_options(tmp_path):
@@ -281,6 +288,8 @@ def test_the_cli_layers_defaults_the_recipe_and_the_options(tmp_path):
     assert not config.train.render_tracking_frames  # the oracle's fast mode, from the recipe
     lk = config_from_args(build_parser().parse_args(["--out", "x", "--tracker", "lk"]))
     assert lk.train.render_tracking_frames and lk.rounds == ImitationConfig().rounds
+    home = build_parser().parse_args(["--out", "x", "--expert", "privileged:home"])
+    assert config_from_args(home).expert == "privileged:home" and lk.expert == "privileged"
     (tmp_path / "bad.json").write_text('{"roundz": 3}')
     with pytest.raises(ValueError, match="roundz"):
         config_from_args(

@@ -67,3 +67,29 @@ def test_in_the_v1_env_action_zero_holds_and_every_rotation_reaches_its_angle():
                 assert session.angle_deg == pytest.approx(wanted, abs=1.0)
     env.close()
     assert rotations >= 1
+
+
+def test_the_home_expert_turns_back_once_nothing_is_pending_and_the_bound_holds():
+    """``privileged:home`` returns to 0 when no branch waits; ``privileged`` stays turned."""
+    from agents.factory import check_spec, make_agent
+
+    env = gym.make(
+        "BranchScanDiscrete-v2", tracker="oracle", render_tracking_frames=False, end_height_m=0.5
+    )
+    env.reset(seed=100_000_000)
+    session = env.unwrapped.session
+    env.step(DISCRETE_ANGLES_DEG.index(22.5) + 1)  # turn to 22.5 deg
+    assert session.angle_deg == pytest.approx(22.5, abs=1.0)
+    check_spec("privileged:home")
+    home, bound = make_agent("privileged:home", env), make_agent("privileged", env)
+    assert home.config.return_home and not bound.config.return_home
+    for agent in (home, bound):
+        agent._pending_directions_rad = lambda: np.zeros(0)  # nothing waits in view
+    assert home.target_angle_deg() == 0.0
+    assert bound.target_angle_deg() == pytest.approx(session.angle_deg)
+    # A branch pointing at the lens still pulls the home expert away from 0.
+    home._pending_directions_rad = lambda: headings(-9.0)
+    assert home.target_angle_deg() == 45.0
+    env.close()
+    with pytest.raises(ValueError, match="privileged"):
+        check_spec("privileged:away")

@@ -13,6 +13,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from agents.privileged import HOME_SPEC
+from agents.privileged import SPEC_KIND as PRIVILEGED_SPEC
 from branch_gym.config_utils import load_config
 from branch_gym.env.config import TREE_PRESETS
 from branch_gym.env.versions import ENV_IDS
@@ -91,6 +93,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--expert-label-weight", type=float, help="weight of the expert labels")
     parser.add_argument("--cost-to-go-weight", type=float, help="weight of the expected regret")
+    parser.add_argument(
+        "--expert",
+        choices=(PRIVILEGED_SPEC, HOME_SPEC),
+        help="the labelling expert (default privileged; privileged:home turns back to 0)",
+    )
     return parser
 
 
@@ -135,6 +142,7 @@ def config_from_args(args: argparse.Namespace) -> ImitationConfig:
         "rollout": args.rollout,
         "expert_label_weight": args.expert_label_weight,
         "cost_to_go_weight": args.cost_to_go_weight,
+        "expert": args.expert,
     }
     return replace(config, train=train, **{k: v for k, v in changes.items() if v is not None})
 

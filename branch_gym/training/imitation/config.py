@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from agents.privileged import HOME_SPEC, parse_privileged_spec
+from agents.privileged import SPEC_KIND as PRIVILEGED_SPEC
 from branch_gym.config_utils import check_keys
 from branch_gym.env.versions import env_version
 from branch_gym.sim.validation import require_int, require_non_negative, require_positive
@@ -91,6 +93,9 @@ class ImitationConfig:
             about 1 / n_actions of the cross-entropy's at an undecided policy: fitted on 300
             priced states alone (``tests/test_cost_to_go.py``), weight 1 left a regret of 0.46
             branch per state after 30 epochs, weight 10 0.03.
+        expert: The labelling expert's policy spec: ``privileged`` (holds where nothing is
+            pending, the shipped students') or ``privileged:home`` (turns back to 0 then:
+            :class:`agents.privileged.PrivilegedConfig`).
 
     With ``train.recurrent`` the student is an sb3-contrib ``RecurrentPPO`` (the same features
     followed by an LSTM, ``MultiInputLstmPolicy``): it plays with its LSTM state carried through
@@ -114,8 +119,14 @@ class ImitationConfig:
     rollout: str = "student"
     expert_label_weight: float = 1.0
     cost_to_go_weight: float = 10.0
+    expert: str = PRIVILEGED_SPEC
 
     def __post_init__(self) -> None:
+        if parse_privileged_spec(self.expert) is None:
+            raise ValueError(
+                f"ImitationConfig.expert must be {PRIVILEGED_SPEC!r} or {HOME_SPEC!r}, "
+                f"got {self.expert!r}"
+            )
         require_int(self, "rounds", "episodes", "epochs", "batch_size", minimum=1)
         require_int(self, "tree_offset", "cost_to_go_states", minimum=0)
         require_non_negative(self, "expert_label_weight", "cost_to_go_weight")

@@ -15,7 +15,8 @@ import numpy as np
 
 import branch_gym  # noqa: F401  (registers the env ids in worker processes)
 from agents.ppo import load_model
-from agents.privileged import PrivilegedAgent
+from agents.privileged import SPEC_KIND as PRIVILEGED_SPEC
+from agents.privileged import PrivilegedAgent, parse_privileged_spec
 from branch_gym.evaluation.episodes import run_episode
 from branch_gym.threads import pin_worker_threads
 from branch_gym.training.config import TrainConfig
@@ -30,14 +31,17 @@ from branch_gym.training.imitation.data import RoundData
 _WORKER: dict[str, Any] = {}
 
 
-def init_worker(train_config: dict[str, Any]) -> None:
-    """Set up a labelling process: the run's env, its expert, no student yet."""
+def init_worker(train_config: dict[str, Any], expert: str = PRIVILEGED_SPEC) -> None:
+    """Set up a labelling process: the run's env, its expert (a privileged spec), no student."""
     pin_worker_threads()
     config = TrainConfig.from_dict(train_config)
     env = gym.make(config.env_id, **config.env_kwargs())
+    expert_config = parse_privileged_spec(expert)
+    if expert_config is None:
+        raise ValueError(f"the labelling expert must be a privileged spec, got {expert!r}")
     _WORKER.update(
         env=env,
-        expert=PrivilegedAgent.for_env(env),
+        expert=PrivilegedAgent.for_env(env, expert_config),
         hold=HoldAgent.for_env(env),
         student=None,
         path=None,
@@ -156,23 +160,29 @@ class RayLabellers:
     Args:
         ray: The initialised ``ray`` module (:func:`branch_gym.evaluation.ray_backend.ray_session`).
         train_config: The run's ``TrainConfig.to_dict()``.
+        expert: The labelling expert's spec (``ImitationConfig.expert``).
     """
 
-    def __init__(self, ray: Any, train_config: dict[str, Any]) -> None:
+    def __init__(
+        self, ray: Any, train_config: dict[str, Any], expert: str = PRIVILEGED_SPEC
+    ) -> None:
         self._ray = ray
-        self._train_config = train_config
+        self._setup = (train_config, expert)
         self._remote = ray.remote(num_cpus=1)(_call_in_worker)
 
     def map(self, function: Any, items: Any) -> Any:
         """Yield ``function(item)`` for each item, in order, each run as a Ray task."""
-        refs = [self._remote.remote(function, self._train_config, item) for item in items]
+        refs = [self._remote.remote(function, self._setup, item) for item in items]
         for ref in refs:
             yield self._ray.get(ref)
 
 
-def _call_in_worker(function: Any, train_config: dict[str, Any], item: Any) -> Any:
-    """One labelling call in a Ray worker process, its env built on the first call."""
-    if _WORKER.get("config") != train_config:
-        init_worker(train_config)
-        _WORKER["config"] = train_config
+def _call_in_worker(function: Any, setup: tuple[dict[str, Any], str], item: Any) -> Any:
+    """One labelling call in a Ray worker process, its env built on the first call.
+
+    ``setup`` is ``(train_config, expert)``, the arguments of :func:`init_worker`.
+    """
+    if _WORKER.get("setup") != setup:
+        init_worker(*setup)
+        _WORKER["setup"] = setup
     return function(item)

@@ -291,7 +291,7 @@ def _labellers(
     train = config.train.to_dict()
     if backend == "ray":
         with ray_session(address, workers) as ray:
-            yield RayLabellers(ray, train)
+            yield RayLabellers(ray, train, config.expert)
         return
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -300,7 +300,7 @@ def _labellers(
     with concurrent.futures.ProcessPoolExecutor(
         max_workers=workers,
         initializer=init_worker,
-        initargs=(train,),
+        initargs=(train, config.expert),
         mp_context=_spawn_context(),
     ) as pool:
         yield pool
