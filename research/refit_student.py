@@ -56,7 +56,9 @@ def main() -> None:
     try:
         model = new_student(config, env)
         rng = np.random.default_rng([config.train.seed, REFIT_STREAM])
-        scores = fit_student(model, data, config, rng, value_bounds_s(env))
+        scores = fit_student(
+            model, data, config, rng, value_bounds_s(env), env.unwrapped.config.reward
+        )
     finally:
         env.close()
     scores["train_rotation_auc"] = rotation_auc(model, data)

@@ -139,6 +139,110 @@ def test_the_fit_follows_the_values_where_the_expert_labels_are_silent():
     assert np.mean(actions == best[:60]) >= 0.95
 
 
+def _outcome_row(seed, step, action, value, scan_time_s, matched):
+    return {
+        "tree_seed": seed, "step": step, "action": action, "return": value,
+        "scan_time_s": scan_time_s, "n_matched": matched, "n_spurious": 0, "n_duplicates": 0,
+        "failure": "",
+    }  # fmt: skip
+
+
+def test_a_branch_log_gives_each_priced_action_its_outcome(tmp_path):
+    """The k-th logged state (by tree seed, step) is the k-th priced row; actions of one effect
+    share their branch (the same return); a log that does not match is named."""
+    import json
+
+    from branch_gym.training.imitation.data import read_outcomes
+
+    vector = np.zeros((5, 12), np.float32)
+    values = np.full((5, 3), np.nan)
+    values[1] = [0.5, 0.7, 0.5]  # tree 10, step 1: actions 0 and 2 hold (one branch)
+    values[4] = [0.1, 0.2, 0.3]  # tree 11, step 1 (its episode: rows 3-4)
+    data = RoundData({"vector": vector}, np.zeros(5, np.int64), values)
+    rows = [
+        _outcome_row(11, 1, 0, 0.1, 30.0, 1),
+        _outcome_row(11, 1, 1, 0.2, 31.0, 2),
+        _outcome_row(11, 1, 2, 0.3, 32.0, 3),
+        _outcome_row(10, 1, 0, 0.5, 20.0, 4),
+        _outcome_row(10, 1, 1, 0.7, 21.0, 5),
+    ]
+    log = tmp_path / "round_0.branches.jsonl"
+    log.write_text("".join(json.dumps(row) + "\n" for row in rows))
+    outcomes = read_outcomes(data, log)
+    assert outcomes.shape == (5, 3, 5)
+    assert outcomes[1, :, 0].tolist() == [20.0, 21.0, 20.0]  # action 2 shares action 0's branch
+    assert outcomes[4, :, 1].tolist() == [1.0, 2.0, 3.0]
+    assert np.isnan(outcomes[[0, 2, 3]]).all()
+    rows[0]["return"] = 0.15  # no logged branch returns action 0's value any more
+    log.write_text("".join(json.dumps(row) + "\n" for row in rows))
+    with pytest.raises(ValueError, match="no branch of tree 11 step 1"):
+        read_outcomes(data, log)
+    log.write_text(json.dumps(rows[3]) + "\n")
+    with pytest.raises(ValueError, match="prices 1 states, its round 2"):
+        read_outcomes(data, log)
+    old = {k: v for k, v in rows[3].items() if k in ("tree_seed", "step", "action", "return")}
+    log.write_text(json.dumps(old) + "\n")
+    assert read_outcomes(data, log) is None  # a log from before the outcomes were kept
+
+
+def test_priced_again_at_other_prices_the_student_follows_its_price_input():
+    """States that all drew 100 s: a 45-degree turn finds one more branch for 60 s more. It pays
+    above 60 s a branch. Priced again at 25 and 400 s, the student holds at 25 s and turns at
+    400 s; fitted on the drawn price alone, it ignores the price and turns at both."""
+    from branch_gym.env.layout import PRICE_KEY, price_feature
+    from branch_gym.training.imitation.data import OUTCOME_COLUMNS
+
+    bounds = (25.0, 400.0)
+    reward = RewardConfig()
+    n, turn = 240, 5
+    config = ImitationConfig(
+        train=FAST, epochs=40, batch_size=64, learning_rate=3e-3, expert_label_weight=0.0,
+        validation_fraction=0.0,
+    )  # fmt: skip
+    rng = np.random.default_rng(0)
+    space = new_student(config).observation_space
+    space.seed(0)
+    observations = {key: np.stack([sub.sample() for _ in range(n)]) for key, sub in space.items()}
+    observations["image"][:] = 0
+    observations["coverage"][:] = 0
+    observations[PRICE_KEY][:] = price_feature(PRICE_S, bounds)
+    n_actions = 6
+    outcomes = np.zeros((n, n_actions, len(OUTCOME_COLUMNS)))
+    outcomes[:, :, 0], outcomes[:, :, 1] = 80.0, 3.0  # other turns: 60 s more, nothing found
+    outcomes[:, 0, 0] = 20.0  # hold
+    outcomes[:, turn, 1] = 4.0  # the 45-degree turn finds one more
+    values = 1.0 * outcomes[:, :, 1] - outcomes[:, :, 0] / PRICE_S
+    data = RoundData(observations, np.zeros(n, np.int64), values, outcomes)
+
+    def turn_share(model, value_s):
+        shown = dict(observations)
+        shown[PRICE_KEY] = np.full_like(observations[PRICE_KEY], price_feature(value_s, bounds))
+        actions, _ = model.predict({k: v[:60] for k, v in shown.items()}, deterministic=True)
+        return float(np.mean(actions == turn))
+
+    sampled = new_student(config)
+    from dataclasses import replace
+
+    fit_student(sampled, data, replace(config, price_samples_s=(25.0, 400.0)), rng, bounds, reward)
+    assert turn_share(sampled, 400.0) >= 0.9 and turn_share(sampled, 25.0) <= 0.1
+    plain = new_student(config)
+    fit_student(plain, data, config, np.random.default_rng(0), bounds, reward)
+    assert turn_share(plain, 25.0) >= 0.9  # nothing taught it what 25 s means
+    with pytest.raises(ValueError, match="outcomes"):
+        fit_student(
+            new_student(config), RoundData(observations, data.expert_actions, values),
+            replace(config, price_samples_s=(25.0,)), rng, bounds, reward,
+        )  # fmt: skip
+    wrong = RoundData(observations, data.expert_actions, values + 0.1, outcomes)
+    with pytest.raises(ValueError, match="does not match"):
+        fit_student(
+            new_student(config), wrong, replace(config, price_samples_s=(25.0,)), rng, bounds,
+            reward,
+        )  # fmt: skip
+    with pytest.raises(ValueError, match="price_samples_s"):
+        ImitationConfig(train=FAST, price_samples_s=(0.0,))
+
+
 @pytest.mark.slow
 def test_a_cost_to_go_run_prices_sampled_states_and_keeps_its_branches(tmp_path):
     import json
@@ -163,6 +267,16 @@ def test_a_cost_to_go_run_prices_sampled_states_and_keeps_its_branches(tmp_path)
     assert (tmp_path / "round_0.branches.jsonl").read_text() == branches
     again = RoundData.load(tmp_path / "round_0.npz")
     np.testing.assert_array_equal(again.action_values, data.action_values)
+    # The log's outcomes give back every priced value (PriceSamples checks it, and raises if not).
+    from branch_gym.training.imitation.data import load_round
+    from branch_gym.training.imitation.fit import PriceSamples
+
+    with_outcomes = load_round(tmp_path, 0)
+    assert np.isfinite(with_outcomes.action_outcomes[with_outcomes.priced()]).all()
+    env = gym.make(FAST.env_id, **FAST.env_kwargs())
+    bounds = env.unwrapped.config.branch_value_s
+    PriceSamples(with_outcomes, (25.0, 400.0), bounds, env.unwrapped.config.reward)
+    env.close()
 
 
 @pytest.mark.slow

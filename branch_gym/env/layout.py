@@ -84,6 +84,27 @@ EXTRA_KEYS = (COVERAGE_KEY, PRICE_KEY)
 PIXEL_FULL = 255.0  # the flat observation holds the image / 255
 
 
+def price_feature(branch_value_s: float, bounds_s: tuple[float, float]) -> float:
+    """The observation's ``price`` of a branch value: 0 at the low bound, 1 at the high, log-scaled.
+
+    >>> price_feature(100.0, (25.0, 400.0))
+    0.5
+    """
+    low, high = bounds_s
+    span = np.log(high / low)
+    return float(np.clip(np.log(branch_value_s / low) / span, 0.0, 1.0)) if span > 0 else 0.0
+
+
+def branch_value_s(price: np.ndarray, bounds_s: tuple[float, float]) -> np.ndarray:
+    """The branch values (s) of observed prices, the inverse of :func:`price_feature`.
+
+    >>> branch_value_s(np.array([0.0, 0.5]), (25.0, 400.0)).tolist()
+    [25.0, 100.0]
+    """
+    low, high = bounds_s
+    return low * (high / low) ** np.asarray(price, float)
+
+
 def vector_bounds(travel_clip_fov: float) -> tuple[np.ndarray, np.ndarray]:
     """(low, high) float32 bounds of the observation vector.
 

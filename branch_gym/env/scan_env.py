@@ -19,7 +19,7 @@ from branch_gym.env.config import (
 )
 from branch_gym.env.coverage import CoverageMemory, rows_to_heights_m
 from branch_gym.env.info import final_metrics, step_info, step_timings
-from branch_gym.env.layout import COVERAGE_KEY, PRICE_KEY
+from branch_gym.env.layout import COVERAGE_KEY, PRICE_KEY, price_feature
 from branch_gym.env.observation import (
     Drawing,
     PipelineState,
@@ -429,8 +429,7 @@ class BranchScanEnv(gym.Env):
         value = fixed_s
         if value is None:
             value = float(np.exp(self.np_random.uniform(np.log(low), np.log(high))))
-        span = np.log(high / low)
-        self._price = float(np.clip(np.log(value / low) / span, 0.0, 1.0)) if span > 0 else 0.0
+        self._price = price_feature(value, (low, high))
         return value
 
     def _info(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -21,7 +22,7 @@ FINAL_MODEL = "model.zip"
 RESUMABLE_CHANGES = (
     "rounds", "epochs", "batch_size", "learning_rate", "weight_decay", "validation_fraction",
     "from_scratch", "rotation_weight", "reference_value_s", "expert_label_weight",
-    "cost_to_go_weight",
+    "cost_to_go_weight", "price_samples_s",
 )  # fmt: skip
 # A student is a classifier of the expert's action: the env must offer a few actions.
 DISCRETE_ACTION_TYPES = ("discrete", "discrete_hold")
@@ -93,6 +94,13 @@ class ImitationConfig:
             about 1 / n_actions of the cross-entropy's at an undecided policy: fitted on 300
             priced states alone (``tests/test_cost_to_go.py``), weight 1 left a regret of 0.46
             branch per state after 30 epochs, weight 10 0.03.
+        price_samples_s: Branch values (s) at which every priced state is priced again, from
+            its branches' logged outcomes (scan time, counts, failure: ``action_outcomes``), its
+            observation showing that price: the expected regret averages over the state's own
+            price and these. Without them each state teaches one price, the one its episode
+            drew, and a student may ignore its price input (issue 34, part 4). The roll-outs
+            after a branch's action stay those played at the episode's own price. Our choice:
+            () (off); the orchard recipe's 25, 50, 100, 200, 400, the env's range.
         expert: The labelling expert's policy spec: ``privileged`` (holds where nothing is
             pending, the shipped students') or ``privileged:home`` (turns back to 0 then:
             :class:`agents.privileged.PrivilegedConfig`).
@@ -120,8 +128,15 @@ class ImitationConfig:
     expert_label_weight: float = 1.0
     cost_to_go_weight: float = 10.0
     expert: str = PRIVILEGED_SPEC
+    price_samples_s: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "price_samples_s", tuple(float(v) for v in self.price_samples_s))
+        if any(not math.isfinite(v) or v <= 0.0 for v in self.price_samples_s):
+            raise ValueError(
+                "ImitationConfig.price_samples_s must be positive branch values (s), got "
+                f"{self.price_samples_s}"
+            )
         if parse_privileged_spec(self.expert) is None:
             raise ValueError(
                 f"ImitationConfig.expert must be {PRIVILEGED_SPEC!r} or {HOME_SPEC!r}, "

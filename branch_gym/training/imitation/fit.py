@@ -18,16 +18,18 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 from scipy.stats import mannwhitneyu
 
-from branch_gym.env.layout import PRICE_KEY
+from branch_gym.env.layout import PRICE_KEY, branch_value_s, price_feature
+from branch_gym.env.reward import RewardConfig
 from branch_gym.training.imitation.config import ImitationConfig
 from branch_gym.training.imitation.cost_to_go import expected_regret
-from branch_gym.training.imitation.data import RoundData, episode_slices
+from branch_gym.training.imitation.data import OUTCOME_COLUMNS, RoundData, episode_slices
 from branch_gym.training.train import new_model
 
 _AUC_BATCH = 1024  # observations per forward pass of rotation_auc (memory, not results)
@@ -78,9 +80,13 @@ def label_weights(
         raise ValueError(
             "ImitationConfig.reference_value_s needs a v1 env (a price in the observation)"
         )
-    low, high = value_bounds_s
-    value_s = low * (high / low) ** data.observations[PRICE_KEY].reshape(-1).astype(float)
+    value_s = branch_value_s(data.observations[PRICE_KEY].reshape(-1), value_bounds_s)
     return np.where(data.expert_actions != 0, weights * value_s / config.reference_value_s, 1.0)
+
+
+# The returns a branch log's outcomes give back against the labels' (float rounding of a sum of
+# step rewards against the closed form).
+_REPRICE_TOLERANCE = 1e-6
 
 
 class FitUnits:
@@ -166,6 +172,7 @@ def fit_student(
     config: ImitationConfig,
     rng: np.random.Generator,
     value_bounds_s: tuple[float, float] | None = None,
+    reward: RewardConfig | None = None,
 ) -> dict[str, float]:
     """Fit the policy to the labels: the expert's actions and the priced states' values.
 
@@ -176,7 +183,9 @@ def fit_student(
         config: Epochs, batch size, learning rate, label weights.
         rng: Minibatch order.
         value_bounds_s: The env's branch value bounds (s), for price conditioning
-            (:func:`label_weights`).
+            (:func:`label_weights`) and ``config.price_samples_s``.
+        reward: The env's reward weights, to price states again at ``config.price_samples_s``
+            (:class:`PriceSamples`).
 
     The loss is ``expert_label_weight`` x the weighted cross-entropy of the expert's actions
     plus ``cost_to_go_weight`` x the expected regret on the steps priced by cost-to-go
@@ -203,6 +212,7 @@ def fit_student(
     if is_priced.any() and isinstance(units, EpisodeUnits):
         raise ValueError("cost-to-go labels need a feed-forward student")
     values = None if data.action_values is None else np.nan_to_num(data.action_values)
+    samples = PriceSamples(data, config.price_samples_s, value_bounds_s, reward)
     per_batch = units.per_batch(config.batch_size)
     n_held_out = round(config.validation_fraction * units.count)
     if n_held_out:
@@ -225,6 +235,8 @@ def fit_student(
             regret = expected_regret(
                 torch.as_tensor(probabilities[priced]), torch.as_tensor(values[index[priced]])
             )
+            with torch.no_grad():
+                regret = samples.mean_regret(policy, index[priced], regret)
             loss += config.cost_to_go_weight * float(regret)
         return loss
 
@@ -242,9 +254,10 @@ def fit_student(
             priced = index[is_priced[index]]
             if len(priced) and config.cost_to_go_weight:
                 probabilities = _probabilities_with_grad(policy, data, priced)
-                loss = loss + config.cost_to_go_weight * expected_regret(
+                regret = expected_regret(
                     probabilities, torch.as_tensor(values[priced], dtype=torch.float32)
                 )
+                loss = loss + config.cost_to_go_weight * samples.mean_regret(policy, priced, regret)
             if isinstance(loss, torch.Tensor):
                 optimiser_step(model, optimizer, loss)
         policy.set_training_mode(False)
@@ -275,6 +288,96 @@ def fit_student(
     if is_priced.any():
         scores.update(priced_scores(data, units.probabilities(train, config.batch_size), train))
     return scores
+
+
+class PriceSamples:
+    """The priced states again at other prices: ``ImitationConfig.price_samples_s``.
+
+    A priced state's label holds, for each action, what its branch ended with
+    (``RoundData.action_outcomes``); at a branch value V its return is the env's
+    (:meth:`~branch_gym.env.reward.RewardConfig.episode_return` with ``match_reward / V`` a
+    second), and the observation shows V as its ``price``.
+
+    Args:
+        data: The labels.
+        prices_s: The branch values (s) to price again at; () for none.
+        value_bounds_s: The env's branch value bounds (s) (the price feature's range).
+        reward: The env's reward weights.
+
+    Raises:
+        ValueError: prices without an env price, reward weights or outcomes on every priced
+            state, or outcomes that do not give back the labels' own values (named).
+    """
+
+    def __init__(
+        self,
+        data: RoundData,
+        prices_s: tuple[float, ...],
+        value_bounds_s: tuple[float, float] | None,
+        reward: RewardConfig | None,
+    ) -> None:
+        self.data, self.prices_s = data, tuple(prices_s)
+        self.bounds_s, self.reward = value_bounds_s, reward
+        priced = data.priced()
+        if not self.prices_s or len(priced) == 0:
+            return
+        if value_bounds_s is None or PRICE_KEY not in data.observations or reward is None:
+            raise ValueError(
+                "ImitationConfig.price_samples_s needs an env with a price (v1 or later) and "
+                "its reward weights"
+            )
+        outcomes = data.action_outcomes
+        if outcomes is None or not np.isfinite(outcomes[priced]).all():
+            raise ValueError(
+                "ImitationConfig.price_samples_s needs every priced state's branch outcomes "
+                "(round_K.branches.jsonl with scan times and counts: runs from 2026-12-05)"
+            )
+        own_s = branch_value_s(data.observations[PRICE_KEY][priced].reshape(-1), value_bounds_s)
+        again = self.values(priced, own_s[:, None])
+        error = np.abs(again - data.action_values[priced]).max()
+        if error > _REPRICE_TOLERANCE:
+            raise ValueError(
+                f"the branch outcomes give back the labels' values only within {error:.2g} "
+                f"(> {_REPRICE_TOLERANCE}): the branch log does not match the labels"
+            )
+
+    def values(self, index: np.ndarray, branch_value_s: Any) -> np.ndarray:
+        """(len(index), n_actions) the returns of the priced rows ``index`` at branch values.
+
+        Args:
+            index: Priced rows.
+            branch_value_s: The branch value (s), a scalar or (len(index), 1).
+        """
+        outcomes = self.data.action_outcomes[index]
+        columns = dict(zip(OUTCOME_COLUMNS, np.moveaxis(outcomes, -1, 0), strict=True))
+        metrics = SimpleNamespace(**{k: columns[k] for k in OUTCOME_COLUMNS[1:4]})
+        time_penalty = self.reward.match_reward / np.asarray(branch_value_s, float)
+        return self.reward.episode_return(
+            metrics, columns["scan_time_s"], columns["failure"], time_penalty
+        )
+
+    def mean_regret(self, policy: Any, index: np.ndarray, own_regret: Any) -> Any:
+        """The expected regret on priced rows averaged over their own price and the samples.
+
+        Args:
+            policy: The student's policy.
+            index: Priced rows.
+            own_regret: Their expected regret at their own price (a torch scalar).
+        """
+        import torch
+
+        if not self.prices_s:
+            return own_regret
+        total = own_regret
+        for value_s in self.prices_s:
+            observations = {key: value[index] for key, value in self.data.observations.items()}
+            price = price_feature(value_s, self.bounds_s)
+            observations[PRICE_KEY] = np.full_like(observations[PRICE_KEY], price)
+            tensors, _ = policy.obs_to_tensor(observations)
+            probabilities = policy.get_distribution(tensors).distribution.probs
+            values = torch.as_tensor(self.values(index, value_s), dtype=torch.float32)
+            total = total + expected_regret(probabilities, values)
+        return total / (1 + len(self.prices_s))
 
 
 def priced_scores(

@@ -42,7 +42,14 @@ from branch_gym.training.imitation.cost_to_go import (
     distinct_actions,
     sample_steps,
 )
-from branch_gym.training.imitation.data import RoundData, model_path, round_path
+from branch_gym.training.imitation.data import (
+    RoundData,
+    branch_log_path,
+    load_round,
+    model_path,
+    read_outcomes,
+    round_path,
+)
 from branch_gym.training.imitation.fit import (
     fit_student,
     new_student,
@@ -105,10 +112,11 @@ def imitate(
     out.mkdir(parents=True, exist_ok=True)
     config_path.write_text(json.dumps(config.to_dict(), indent=2))
     done = finished_rounds(out, config.rounds)
-    rounds = [RoundData.load(round_path(out, k)) for k in range(done)]
+    rounds = [load_round(out, k) for k in range(done)]
     spaces_env = gym.make(config.train.env_id, **config.train.env_kwargs())
     model = load_model(model_path(out, done - 1)) if done else new_student(config, spaces_env)
     bounds = value_bounds_s(spaces_env)
+    reward = spaces_env.unwrapped.config.reward
     bar = None
     if progress:
         bar = tqdm(total=config.rounds * config.episodes, initial=done * config.episodes)
@@ -132,6 +140,8 @@ def imitate(
                         pool, config, round_index, results, summaries, student_path, spaces_env,
                         out, progress,
                     )  # fmt: skip
+                    log = branch_log_path(out, round_index)
+                    round_data.action_outcomes = read_outcomes(round_data, log)
                 round_data.save(round_path(out, round_index))
                 rounds.append(round_data)
                 # The student that played this round, on labels it was not fitted on.
@@ -140,7 +150,7 @@ def imitate(
                 if config.from_scratch:
                     model = new_student(config, spaces_env)
                 all_labels = RoundData.concatenate(rounds)
-                fit = fit_student(model, all_labels, config, rng, bounds)
+                fit = fit_student(model, all_labels, config, rng, bounds, reward)
                 fit["student_rotation_auc"] = held_out_auc
                 fit["train_rotation_auc"] = rotation_auc(model, all_labels)
                 if fit["train_rotation_auc"] < COLLAPSED_AUC:
@@ -225,7 +235,7 @@ def _price_states(
             ]
             jobs.append((offset + int(step), groups, tasks))
         offset += len(data.expert_actions)
-    log = out / f"round_{round_index}.branches.jsonl"
+    log = branch_log_path(out, round_index)
     done = {}
     if log.exists():
         for line in log.read_text().splitlines():
