@@ -139,10 +139,10 @@ def main() -> None:
                 f"{100 * CHEAP_END_FEWER:.0f} % target); vs none "
                 f"{_paired(records[p], records['none'])}"
             )
-    if "privileged" in stats:
-        print("\nAgainst the privileged bound:")
+    for bound in sorted(b for b in stats if b.split(":")[0] == "privileged"):
+        print(f"\nAgainst the privileged bound {bound} ({_cell(stats[bound])}):")
         for p in learned:
-            print(f"- {p}: {_paired(records[p], records['privileged'])}")
+            print(f"- {p}: {_paired(records[p], records[bound])}")
 
 
 if __name__ == "__main__":

@@ -72,7 +72,7 @@ def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
         x, y = time_s["mean"], missed
         xerr = _error_bar(x, entry.get("scan_time_s_ci"), time_s["std"] or 0.0)
         yerr = _error_bar(y, entry.get("missed_pct_ci"), 0.0)
-        marker = PRIVILEGED_MARKER if policy == PRIVILEGED_KIND else "o"
+        marker = PRIVILEGED_MARKER if policy.split(":")[0] == PRIVILEGED_KIND else "o"
         axes.errorbar(x, y, xerr=xerr, yerr=yerr, fmt=marker, capsize=3, markersize=7)
         axes.annotate(policy, (x, y), xytext=(5, 5), textcoords="offset points", fontsize=8)
         if policy.startswith(PPO_SPEC_PREFIX):
