@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from itertools import pairwise
 from pathlib import Path
 
 import gymnasium as gym
@@ -30,7 +31,12 @@ from branch_gym.training.imitation.cost_to_go import (
     branch_outcome,
     play_branch,
 )
-from branch_gym.training.imitation.data import RoundData, episode_slices, round_path
+from branch_gym.training.imitation.data import (
+    RoundData,
+    branch_log_path,
+    episode_slices,
+    round_path,
+)
 
 LOSS_MARGIN = 0.5  # our choice: half a found branch, as research/cost_to_go_labels.py
 RETURN_TOLERANCE = 1e-6  # a replay reproduces the logged return to float rounding
@@ -40,15 +46,22 @@ def losing_branches(run: Path, config: ImitationConfig) -> list[dict]:
     """Round 0's branches whose turn lost more than ``LOSS_MARGIN`` against holding."""
     data = RoundData.load(round_path(run, 0))
     logged = {}
-    for line in (run / "branches.jsonl").read_text().splitlines():
+    log = branch_log_path(run, 0)  # runs from 2026-12-05; the v2-v5 records: one branches.jsonl
+    for line in (log if log.exists() else run / "branches.jsonl").read_text().splitlines():
         row = json.loads(line)
         logged[(row["tree_seed"], row["step"], row["action"])] = row["return"]
     cases = []
     for episode, part in enumerate(episode_slices(data)):
         seed = config.tree_seed(0, episode)
         vectors = data.observations[VECTOR_KEY][part]
-        targets = np.round(vectors[1:, VectorField.PREVIOUS_ACTION] * DISCRETE_ANGLES_DEG[-1], 1)
-        actions = [1 + DISCRETE_ANGLES_DEG.index(float(angle)) for angle in targets]
+        targets = np.round(vectors[:, VectorField.PREVIOUS_ACTION] * DISCRETE_ANGLES_DEG[-1], 1)
+        # A step whose target did not change held (action 0): the expert holds at its angle, and
+        # "go to the angle it is at" is not the same action where the rotation left it a little
+        # short of its target.
+        actions = [
+            0 if angle == before else 1 + DISCRETE_ANGLES_DEG.index(float(angle))
+            for before, angle in pairwise(targets)
+        ]
         for (tree, step, action), value in sorted(logged.items()):
             held = logged.get((tree, step, 0))
             if tree != seed or action == 0 or held is None or value >= held - LOSS_MARGIN:
