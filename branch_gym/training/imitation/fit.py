@@ -373,8 +373,7 @@ class PriceSamples:
             observations = {key: value[index] for key, value in self.data.observations.items()}
             price = price_feature(value_s, self.bounds_s)
             observations[PRICE_KEY] = np.full_like(observations[PRICE_KEY], price)
-            tensors, _ = policy.obs_to_tensor(observations)
-            probabilities = policy.get_distribution(tensors).distribution.probs
+            probabilities = policy_probabilities(policy, observations)
             values = torch.as_tensor(self.values(index, value_s), dtype=torch.float32)
             total = total + expected_regret(probabilities, values)
         return total / (1 + len(self.prices_s))
@@ -410,10 +409,15 @@ def priced_scores(
 
 def _probabilities_with_grad(policy: Any, data: RoundData, index: np.ndarray) -> Any:
     """(len(index), n_actions) torch action probabilities of a feed-forward policy."""
-    observation, _ = policy.obs_to_tensor(
-        {key: value[index] for key, value in data.observations.items()}
+    return policy_probabilities(
+        policy, {key: value[index] for key, value in data.observations.items()}
     )
-    return policy.get_distribution(observation).distribution.probs
+
+
+def policy_probabilities(policy: Any, observations: dict[str, np.ndarray]) -> Any:
+    """(B, n_actions) torch action probabilities (with gradients) of a feed-forward policy."""
+    tensors, _ = policy.obs_to_tensor(observations)
+    return policy.get_distribution(tensors).distribution.probs
 
 
 def student_probabilities(model: Any, data: RoundData) -> np.ndarray:
