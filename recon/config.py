@@ -43,6 +43,16 @@ class ModelerConfig:
             and near the 2D curve (paper IV: 60 %).
         consistency_tolerance_px: Distance to the 2D curve for a consistent point (paper IV: 4 px;
             the authors' code used 25 px).
+        primary_max_turn_deg: A 2D primary that agrees with the model's projection but leaves
+            it at a larger angle beyond the model's last visible point is never chosen
+            (:meth:`recon.curve2d.primary.PrimaryPrior.turns_away`; ours: where an occluder
+            cuts the primary's mask, the path through the model's pixels into a side branch
+            or a crossing branch took the scan off the trunk). None: no limit (the paper's rule).
+        primary_model_vouches: A 2D primary that agrees with the model's projection needs only
+            ``Curve2DConfig.min_primary_length_px``, not the elongation and view-span tests that
+            keep a blob from starting a model (ours: an occluder across a thick trunk, e.g. a
+            tall spindle's, leaves pieces shorter than four diameters; with no primary for 20
+            iterations the scan was lost).
         restart_after_inconsistent: The n-th Inconsistent in a row is a Restart (paper IV: 3rd).
         max_depth_m: Lifted points deeper than this are dropped (paper IV: 1 m).
         max_reprojection_px: Lifted points with a larger reprojection error are dropped
@@ -167,6 +177,8 @@ class ModelerConfig:
     tracking_spacing_m: float = 0.001
     consistency_min_fraction: float = 0.6
     consistency_tolerance_px: float = 4.0
+    primary_max_turn_deg: float | None = None
+    primary_model_vouches: bool = False
     restart_after_inconsistent: int = 3
     max_depth_m: float = 1.0
     max_reprojection_px: float = 4.0
@@ -203,6 +215,7 @@ class ModelerConfig:
 
     def __post_init__(self) -> None:
         not_positive = (
+            "primary_max_turn_deg",
             "secondary_min_reach_m",
             "secondary_trust_min",
             "secondary_trust_in_view",
@@ -234,6 +247,12 @@ class ModelerConfig:
             raise ValueError(
                 "ModelerConfig.secondary_min_reach_m must be a finite number >= 0 or None "
                 f"(resolved by the mask source), got {reach!r}"
+            )
+        turn = self.primary_max_turn_deg
+        if turn is not None and not (isinstance(turn, (int, float)) and 0.0 < turn < 180.0):
+            raise ValueError(
+                "ModelerConfig.primary_max_turn_deg must be in (0, 180) degrees or None (no "
+                f"limit), got {turn!r}"
             )
         tolerance = self.secondary_trust_tolerance_px
         if tolerance is not None and not tolerance >= 0.0:

@@ -15,6 +15,7 @@ camera motion and runs one iteration every 10 mm:
 from __future__ import annotations
 
 import logging
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum
@@ -302,7 +303,11 @@ class Modeler:
         if visible.sum() < 2:
             return None
         return PrimaryPrior(
-            pixels[visible], cfg.consistency_tolerance_px, cfg.consistency_min_fraction
+            pixels[visible],
+            cfg.consistency_tolerance_px,
+            cfg.consistency_min_fraction,
+            math.inf if cfg.primary_max_turn_deg is None else cfg.primary_max_turn_deg,
+            cfg.primary_model_vouches,
         )
 
     def _lift_secondaries(

@@ -4,6 +4,8 @@ view and wires crossing. Synthetic masks at 320x240, drawn with the helpers of t
 
 from __future__ import annotations
 
+import dataclasses
+
 import cv2
 import numpy as np
 import pytest
@@ -271,3 +273,57 @@ def test_a_level_edge_between_the_junctions_of_a_crossing_keeps_the_primary_whol
     assert whole[0] < 15 and whole[1] > 225
     with pytest.raises(ValueError, match="crossing_level_px"):
         Curve2DConfig(crossing_level_px=-1.0)
+
+
+def _cut_trunk_with_side_branch() -> tuple[np.ndarray, PrimaryPrior]:
+    """A vertical trunk cut by a 30 px occluder (wider than it: never bridged) just above a side
+    branch that leaves it at 45 degrees, and the model's trunk below the cut as the prior."""
+    column = 160.0
+    lower = np.stack([np.full(301, column), np.linspace(250.0, 165.0, 301)], axis=1)
+    upper = np.stack([np.full(601, column), np.linspace(135.0, -10.0, 601)], axis=1)
+    side = _segment(np.array([column, 195.0]), -135.0, 230.0)  # up and to the left
+    mask = _tube(lower, 12.0) | _tube(upper, 12.0) | _tube(side, 8.0)
+    mask[135:165, 146:175] = False  # the occluder across the trunk: background in the mask
+    model = np.stack([np.full(14, column), np.linspace(235.0, 195.0, 14)], axis=1)  # base to top
+    return mask, PrimaryPrior(model, 4.0, 0.6)
+
+
+def test_primary_does_not_turn_off_the_model_into_a_side_branch() -> None:
+    """The path along the model's pixels into the side branch is the longest one; without a turn
+    limit it becomes the primary (the scan then follows the side branch: the orchard's lost
+    scans), with one the trunk beyond the occluder is chosen (the model's stub below the cut is
+    too short to be a primary), which the modeler then finds inconsistent and restarts on."""
+    mask, prior = _cut_trunk_with_side_branch()
+    unlimited = fit_mask_curves(mask, prior=prior)
+    assert unlimited.primary is not None
+    assert unlimited.primary.samples_px[:, 0].min() < 100.0  # along the side branch
+    limited = fit_mask_curves(mask, prior=dataclasses.replace(prior, max_turn_deg=30.0))
+    assert limited.primary is not None
+    samples = limited.primary.samples_px
+    assert np.abs(samples[:, 0] - 160.0).max() < 3.0 and samples[:, 1].max() < 140.0
+
+
+def test_turn_limit_keeps_a_primary_that_bends_gently() -> None:
+    """A trunk bending 20 degrees beyond the model's end, with no cut, stays the primary."""
+    lower = np.stack([np.full(301, 160.0), np.linspace(250.0, 150.0, 301)], axis=1)
+    bend = _segment(lower[-1], -90.0 - 20.0, 160.0)  # up, leaning 20 degrees left
+    mask = _tube(np.concatenate([lower, bend]), 10.0)
+    model = np.stack([np.full(14, 160.0), np.linspace(235.0, 160.0, 14)], axis=1)
+    prior = PrimaryPrior(model, 4.0, 0.6, max_turn_deg=30.0)
+    assert not prior.turns_away(fit_mask_curves(mask).primary.curve)
+    result = fit_mask_curves(mask, prior=prior)
+    assert result.primary is not None and result.primary.samples_px[:, 1].min() < 20.0
+
+
+def test_model_vouches_for_a_short_piece_of_a_thick_trunk() -> None:
+    """An occluder across a thick trunk leaves a piece shorter than four diameters: no primary
+    without the model (a blob must not start one); with the model's agreeing projection and
+    ``vouches`` it stays the primary."""
+    trunk = np.stack([np.full(481, 160.0), np.linspace(250.0, 130.0, 481)], axis=1)
+    mask = _tube(trunk, 25.0)
+    model = np.stack([np.full(10, 160.0), np.linspace(225.0, 140.0, 10)], axis=1)
+    prior = PrimaryPrior(model, 4.0, 0.6)
+    assert fit_mask_curves(mask).primary is None
+    assert fit_mask_curves(mask, prior=prior).primary is None
+    vouched = fit_mask_curves(mask, prior=dataclasses.replace(prior, vouches=True)).primary
+    assert vouched is not None and np.abs(vouched.samples_px[:, 0] - 160.0).max() < 2.0

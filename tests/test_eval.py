@@ -498,6 +498,7 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     del before["render_tracking_frames"], before["modeler"]["secondary_trust_redetected"]
     del before["modeler"]["secondary_trust_tolerance_px"]
     del before["modeler"]["secondary_min_reach_m"]
+    del before["modeler"]["primary_max_turn_deg"], before["modeler"]["primary_model_vouches"]
     del before["frame_pairing"]
     del before["world"]["orchard"], before["world"]["tree"]["architecture"]
     del before["world"]["tree"]["primary_base_height_m"]
@@ -505,6 +506,8 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     assert config_hash(config) == published
     redetected = replace(config, modeler=replace(config.modeler, secondary_trust_redetected=True))
     assert config_hash(redetected) != published
+    turn = replace(config, modeler=replace(config.modeler, primary_max_turn_deg=30.0))
+    assert config_hash(turn) != published
 
 
 @pytest.mark.parametrize(

@@ -145,6 +145,9 @@ def test_bad_frames_raise_clear_errors() -> None:
         ModelerConfig(tracking_frames=1)
     with pytest.raises(ValueError, match="iteration_spacing_m"):
         ModelerConfig(iteration_spacing_m=-1.0)
+    for turn in (0.0, 180.0, float("nan"), "30"):
+        with pytest.raises(ValueError, match="primary_max_turn_deg"):
+            ModelerConfig(primary_max_turn_deg=turn)
 
 
 def test_lifted_branch_is_cut_at_an_implausible_depth_jump() -> None:

@@ -170,6 +170,8 @@ HASH_NEUTRAL_DEFAULTS = {
     "modeler.secondary_trust_redetected": False,
     "modeler.secondary_trust_tolerance_px": 0.0,  # hashed resolved (ScanConfig.modeler_config)
     "modeler.secondary_min_reach_m": 0.0,  # hashed resolved (ScanConfig.modeler_config)
+    "modeler.primary_max_turn_deg": None,
+    "modeler.primary_model_vouches": False,
     "world.orchard": None,
     "world.tree.architecture": "paper",
     "world.tree.primary_base_height_m": 0.0,

@@ -33,6 +33,7 @@ graph paths in ``recon/curve2d/path_search.py``, step 3 in ``recon/curve2d/prima
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -93,12 +94,38 @@ def fit_mask_curves(
     clean = preprocess_mask(mask, config.skeleton)
     graph = extract_skeleton(clean, config.skeleton)
     sg = SearchGraph(graph)
-    path, curve, score, evaluated, truncated = find_primary(sg, direction, config, prior)
+    path, primary, evaluated, truncated = _primary(sg, direction, config, prior, clean.shape)
+    if primary is None and prior is not None and math.isfinite(prior.max_turn_deg):
+        # The path that agrees with the model is no primary (the model's stub below an occluder
+        # that cuts the trunk): take the best path that does not turn off the model. The modeler
+        # finds it inconsistent and restarts on it, where no primary at all lost the branch.
+        path, primary, more, cut = _primary(
+            sg, direction, config, replace(prior, min_fraction=0.0), clean.shape
+        )
+        evaluated, truncated = evaluated + more, truncated or cut
     if truncated:
         logger.debug("primary path search truncated after %d paths", evaluated)
-    no_primary = MaskCurves(None, [], truncated, evaluated, graph, clean)
+    if path is None or primary is None:
+        return MaskCurves(None, [], truncated, evaluated, graph, clean)
+    secondaries, more, cut = find_secondaries(sg, path, primary, config, clean)
+    if len(graph.bridge_uv):
+        primary = _flag_bridged(primary, graph, clean)
+        secondaries = [_flag_bridged(s, graph, clean) for s in secondaries]
+    return MaskCurves(primary, secondaries, truncated or cut, evaluated + more, graph, clean)
+
+
+def _primary(
+    sg: SearchGraph,
+    direction: np.ndarray,
+    config: Curve2DConfig,
+    prior: PrimaryPrior | None,
+    shape: tuple[int, ...],
+) -> tuple[tuple[int, ...] | None, Curve2D | None, int, bool]:
+    """:func:`find_primary`'s path as a :class:`Curve2D`: (path, primary or None when it is too
+    short or not branch-like, paths evaluated, truncated)."""
+    path, curve, score, evaluated, truncated = find_primary(sg, direction, config, prior)
     if path is None or curve is None:
-        return no_primary
+        return None, None, evaluated, truncated
     pixels, radii = sg.path_pixels(path)
     if (curve.control_points[-1] - curve.control_points[0]) @ direction < 0.0:
         # Keep B(0) at the start of the scan direction (a path hooked at its end can flip it).
@@ -106,15 +133,12 @@ def fit_mask_curves(
     dist = curve.closest_params(pixels, newton_iterations=NEWTON_ITERATIONS)[1]
     fraction = float(np.mean(dist <= config.inlier_threshold_px))
     primary = make_curve2d(curve, pixels, radii, score, fraction, config)
-    if primary.length_px < config.min_primary_length_px or not _branch_like(
-        primary, pixels, direction, clean.shape, config
-    ):
-        return no_primary
-    secondaries, more, cut = find_secondaries(sg, path, primary, config, clean)
-    if len(graph.bridge_uv):
-        primary = _flag_bridged(primary, graph, clean)
-        secondaries = [_flag_bridged(s, graph, clean) for s in secondaries]
-    return MaskCurves(primary, secondaries, truncated or cut, evaluated + more, graph, clean)
+    if primary.length_px < config.min_primary_length_px:
+        return path, None, evaluated, truncated
+    vouched = prior is not None and prior.vouches and prior.agrees(curve)
+    if not vouched and not _branch_like(primary, pixels, direction, shape, config):
+        return path, None, evaluated, truncated
+    return path, primary, evaluated, truncated
 
 
 def _branch_like(

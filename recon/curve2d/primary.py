@@ -31,6 +31,13 @@ _RASTER_SEGMENT_PX = 4.0
 _RASTER_MIN_PIXELS = 1500  # below this, exact distances for all are cheaper than drawing
 _RASTER_MARGIN_PX = 2
 _RASTER_SHIFT = 2
+# PrimaryPrior.turns_away (ours): the model's direction over its last 30 px of projection (the
+# paper's primary sample spacing), the curve's run over the next 40 px (past a junction's blob),
+# the curve sampled every ~1/64 of its length; a model chord shorter than 8 px gives no direction.
+_TURN_BASE_PX = 30.0
+_TURN_LOOKAHEAD_PX = 40.0
+_TURN_MIN_CHORD_PX = 8.0
+_TURN_SAMPLES = 65
 
 
 class _PrimaryScorer:
@@ -114,19 +121,60 @@ class PrimaryPrior:
     """Where the 3D model says the primary is: its visible points projected into this frame.
 
     Attributes:
-        pixels: (K, 2) projected model points (u, v).
+        pixels: (K, 2) projected model points (u, v), base to top of the model.
         tolerance_px: A model point agrees with a curve within this distance (paper IV: 4 px).
         min_fraction: A curve agrees with the model when this fraction of points does (60 %).
+        max_turn_deg: Largest angle between the model's direction at its last visible point and
+            the curve's run beyond it (:meth:`turns_away`); ``inf``: no limit (the paper's rule).
+        vouches: A curve that agrees with the model is a primary however short (down to
+            ``Curve2DConfig.min_primary_length_px``): the elongation and view-span tests, which
+            keep blobs from starting a model, are skipped for it.
     """
 
     pixels: np.ndarray
     tolerance_px: float
     min_fraction: float
+    max_turn_deg: float = math.inf
+    vouches: bool = False
 
     def agreement(self, curve: CubicBezier) -> float:
         """Fraction of the model points within ``tolerance_px`` of ``curve``."""
         dist = curve.closest_params(self.pixels, newton_iterations=NEWTON_ITERATIONS)[1]
         return float(np.mean(dist <= self.tolerance_px))
+
+    def agrees(self, curve: CubicBezier) -> bool:
+        """Whether ``curve`` agrees with the model (``min_fraction`` of its points)."""
+        return self.agreement(curve) >= self.min_fraction
+
+    def turns_away(self, curve: CubicBezier) -> bool:
+        """Whether ``curve`` agrees with the model but leaves it at an angle above ``max_turn_deg``.
+
+        Such a curve follows the model up to its last visible point and then takes another
+        branch: where the primary's mask is cut (an occluder, a gap in a learned mask), a side
+        branch leaving near the cut, or a crossing neighbour branch, is the longest path through
+        the model's pixels, and taking it moves the model off the primary. The model's direction
+        is the chord over its last ``_TURN_BASE_PX`` of projection; the curve's run is its chord
+        between where it crosses the model's end and ``_TURN_LOOKAHEAD_PX`` beyond it (progress
+        along the model's direction). A curve that does not reach half that far beyond the end
+        does not turn away.
+        """
+        if not math.isfinite(self.max_turn_deg) or len(self.pixels) < 2:
+            return False
+        end = self.pixels[-1]
+        far = np.flatnonzero(np.linalg.norm(self.pixels - end, axis=1) >= _TURN_BASE_PX)
+        model = end - (self.pixels[far[-1]] if len(far) else self.pixels[0])
+        length = float(np.linalg.norm(model))
+        if length < _TURN_MIN_CHORD_PX:
+            return False
+        model /= length
+        samples = curve(np.linspace(0.0, 1.0, _TURN_SAMPLES))
+        along = (samples - end) @ model
+        ahead = np.flatnonzero((along >= 0.0) & (along <= _TURN_LOOKAHEAD_PX))
+        if len(ahead) < 2 or np.ptp(along[ahead]) < 0.5 * _TURN_LOOKAHEAD_PX:
+            return False
+        run = samples[ahead[np.argmax(along[ahead])]] - samples[ahead[np.argmin(along[ahead])]]
+        cos_turn = float(run @ model) / float(np.linalg.norm(run))
+        return cos_turn < math.cos(math.radians(self.max_turn_deg)) and self.agrees(curve)
 
 
 def find_primary(
@@ -141,6 +189,8 @@ def find_primary(
     model but another path agrees, the best-scoring path among those that agree is chosen: a side
     branch that rises along the view after a rotation must not replace a well-supported primary.
     Without an agreeing path the plain best is returned (and the modeler finds it Inconsistent).
+    A curve that agrees with the prior but turns away from it beyond its last visible point
+    (:meth:`PrimaryPrior.turns_away`, when ``prior.max_turn_deg`` is finite) is never chosen.
     """
     adjacency = oriented_adjacency(sg, direction, config.crossing_level_px)
     progress = sg.graph.node_uv @ direction
@@ -182,6 +232,8 @@ def find_primary(
         if scorer.bound_window(lo, hi) < best[2]:
             continue
         score = scorer.score(curve, lo, hi)
+        if score >= best[2] and score > 0.0 and prior is not None and prior.turns_away(curve):
+            continue  # follows the model, then leaves it for another branch
         if score > best[2]:
             best, best_residual = (paths[i], curve, score), None
         elif score == best[2] and score > 0.0:
@@ -192,7 +244,7 @@ def find_primary(
             residual = _rms_residual(curve, pixels)
             if residual < best_residual:
                 best, best_residual = (paths[i], curve, score), residual
-    if prior is not None and best[1] is not None and prior.agreement(best[1]) < prior.min_fraction:
+    if prior is not None and best[1] is not None and not prior.agrees(best[1]):
         agreeing = _best_agreeing_path(sg, paths, scorer, prior)
         if agreeing is not None:
             best = agreeing
@@ -209,7 +261,7 @@ def _best_agreeing_path(
         if len(pixels) < MIN_FIT_PIXELS:
             continue
         curve = fit_bezier(pixels)
-        if prior.agreement(curve) < prior.min_fraction:
+        if not prior.agrees(curve) or prior.turns_away(curve):
             continue
         score = scorer.score(curve, *scorer.curve_window(curve))
         if best is None or score > best[2]:
