@@ -327,3 +327,12 @@ def test_model_vouches_for_a_short_piece_of_a_thick_trunk() -> None:
     assert fit_mask_curves(mask, prior=prior).primary is None
     vouched = fit_mask_curves(mask, prior=dataclasses.replace(prior, vouches=True)).primary
     assert vouched is not None and np.abs(vouched.samples_px[:, 0] - 160.0).max() < 2.0
+
+
+def test_model_vouches_only_for_pieces_that_agree_with_it() -> None:
+    """The same short thick piece with the model 60 px to its side: no primary, turn limit or
+    not (the fallback past the model's stub takes no blob)."""
+    trunk = np.stack([np.full(481, 160.0), np.linspace(250.0, 130.0, 481)], axis=1)
+    model = np.stack([np.full(10, 220.0), np.linspace(225.0, 140.0, 10)], axis=1)
+    prior = PrimaryPrior(model, 4.0, 0.6, max_turn_deg=30.0, vouches=True)
+    assert fit_mask_curves(_tube(trunk, 25.0), prior=prior).primary is None

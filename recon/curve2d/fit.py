@@ -99,9 +99,9 @@ def fit_mask_curves(
         # The path that agrees with the model is no primary (the model's stub below an occluder
         # that cuts the trunk): take the best path that does not turn off the model. The modeler
         # finds it inconsistent and restarts on it, where no primary at all lost the branch.
-        path, primary, more, cut = _primary(
-            sg, direction, config, replace(prior, min_fraction=0.0), clean.shape
-        )
+        # Every path "agrees" with that prior, so it vouches for none (the blob test holds).
+        anywhere = replace(prior, min_fraction=0.0, vouches=False)
+        path, primary, more, cut = _primary(sg, direction, config, anywhere, clean.shape)
         evaluated, truncated = evaluated + more, truncated or cut
     if truncated:
         logger.debug("primary path search truncated after %d paths", evaluated)
