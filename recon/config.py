@@ -47,7 +47,10 @@ class ModelerConfig:
             it at a larger angle beyond the model's last visible point is never chosen
             (:meth:`recon.curve2d.primary.PrimaryPrior.turns_away`; ours: where an occluder
             cuts the primary's mask, the path through the model's pixels into a side branch
-            or a crossing branch took the scan off the trunk). None: no limit (the paper's rule).
+            or a crossing branch took the scan off the trunk). With a limit, when the only
+            agreeing path is the model's stub below a cut, too short to be a primary, the best
+            path that does not turn off the model is taken (:func:`recon.curve2d.fit.
+            fit_mask_curves`): the modeler restarts on it. None: no limit (the paper's rule).
         primary_model_vouches: A 2D primary that agrees with the model's projection needs only
             ``Curve2DConfig.min_primary_length_px``, not the elongation and view-span tests that
             keep a blob from starting a model (ours: an occluder across a thick trunk, e.g. a
