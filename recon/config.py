@@ -50,12 +50,13 @@ class ModelerConfig:
             or a crossing branch took the scan off the trunk). With a limit, when the only
             agreeing path is the model's stub below a cut, too short to be a primary, the best
             path that does not turn off the model is taken (:func:`recon.curve2d.fit.
-            fit_mask_curves`): the modeler restarts on it. None: no limit (the paper's rule).
+            fit_mask_curves`): the modeler restarts on it. Ours: 30 degrees, fixed on validation
+            trees (``docs/results/orchard.md``); None: no limit (the paper's rule).
         primary_model_vouches: A 2D primary that agrees with the model's projection needs only
             ``Curve2DConfig.min_primary_length_px``, not the elongation and view-span tests that
             keep a blob from starting a model (ours: an occluder across a thick trunk, e.g. a
             tall spindle's, leaves pieces shorter than four diameters; with no primary for 20
-            iterations the scan was lost).
+            iterations the scan was lost). Ours: True; False: the paper's rule.
         restart_after_inconsistent: The n-th Inconsistent in a row is a Restart (paper IV: 3rd).
         max_depth_m: Lifted points deeper than this are dropped (paper IV: 1 m).
         max_reprojection_px: Lifted points with a larger reprojection error are dropped
@@ -180,8 +181,8 @@ class ModelerConfig:
     tracking_spacing_m: float = 0.001
     consistency_min_fraction: float = 0.6
     consistency_tolerance_px: float = 4.0
-    primary_max_turn_deg: float | None = None
-    primary_model_vouches: bool = False
+    primary_max_turn_deg: float | None = 30.0  # ours (docs/results/orchard.md, lost scans)
+    primary_model_vouches: bool = True  # ours (docs/results/orchard.md, lost scans)
     restart_after_inconsistent: int = 3
     max_depth_m: float = 1.0
     max_reprojection_px: float = 4.0

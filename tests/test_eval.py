@@ -492,8 +492,13 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     import hashlib
     from dataclasses import replace
 
-    config = ScanConfig()
-    config = config.replace(modeler=config.modeler_config())  # hashed as run (EvalConfig)
+    default = ScanConfig()
+    default = default.replace(modeler=default.modeler_config())  # hashed as run (EvalConfig)
+    # The published trials ran the paper's primary rule, no longer the default.
+    config = replace(
+        default,
+        modeler=replace(default.modeler, primary_max_turn_deg=None, primary_model_vouches=False),
+    )
     before = config_to_dict(config)  # the config as published before the fields existed
     del before["render_tracking_frames"], before["modeler"]["secondary_trust_redetected"]
     del before["modeler"]["secondary_trust_tolerance_px"]
@@ -508,6 +513,7 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     assert config_hash(redetected) != published
     turn = replace(config, modeler=replace(config.modeler, primary_max_turn_deg=30.0))
     assert config_hash(turn) != published
+    assert config_hash(default) not in {published, config_hash(turn)}  # a new rule: new trials
 
 
 @pytest.mark.parametrize(
