@@ -134,7 +134,8 @@ def main() -> None:
             fewer = 1.0 - stats[p]["missed"] / stats["none"]["missed"]
             verdict = "meets" if fewer >= CHEAP_END_FEWER else "misses"
             print(
-                f"- {p}: {100 * fewer:.0f} % fewer misses than none at "
+                f"- {p}: {100 * abs(fewer):.0f} % {'fewer' if fewer >= 0 else 'more'} misses "
+                f"than none at "
                 f"{stats[p]['time'] / stats['none']['time']:.2f}x ({verdict} the "
                 f"{100 * CHEAP_END_FEWER:.0f} % target); vs none "
                 f"{_paired(records[p], records['none'])}"

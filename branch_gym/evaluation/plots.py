@@ -9,13 +9,14 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (importing it registers "3d")
 
-from agents.ppo import PPO_SPEC_PREFIX
+from agents.ppo import PPO_SPEC_PREFIX, PRICE_SEPARATOR
 from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
 from branch_gym.evaluation.trials import TrialRecord
 from recon.metrics import MetricsConfig
@@ -30,6 +31,8 @@ ABOVE_SCAN_M = 0.10
 VIEW_ELEVATION_DEG = 15.0
 VIEW_AZIMUTH_DEG = -70.0
 PRIVILEGED_MARKER = "*"
+LEARNED_MARKER = "s"
+POINT_COLORMAP = "tab20"  # 20 distinct colours: a benchmark compares up to ~17 policies
 
 
 def write_figures(
@@ -58,37 +61,74 @@ def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
     """The Pareto plot: missed % against mean scan time, one point per policy.
 
     Error bars are the 95 % bootstrap intervals over trees (``missed_pct_ci``,
-    ``scan_time_s_ci``; the std of the scan time where an interval is missing). Learned
-    policies (``ppo:``) are joined into their front; the privileged bound is a star.
+    ``scan_time_s_ci``; the std of the scan time where an interval is missing). Fixed schedules
+    are circles, learned policies (``ppo:``) squares joined by their front
+    (:func:`learned_front`), privileged bounds stars; the legend names each point
+    (:func:`short_label`).
     """
-    figure = Figure(figsize=(7.0, 5.0))
+    figure = Figure(figsize=(9.0, 5.0))
     FigureCanvasAgg(figure)
     axes = figure.add_subplot()
-    front = []
-    for policy, entry in summary["policies"].items():
+    colors = matplotlib.colormaps[POINT_COLORMAP].colors
+    learned = []
+    for index, (policy, entry) in enumerate(summary["policies"].items()):
         time_s, missed = entry["scan_time_s"], entry["missed_pct"]
         if time_s["mean"] is None or missed is None:
             continue
         x, y = time_s["mean"], missed
         xerr = _error_bar(x, entry.get("scan_time_s_ci"), time_s["std"] or 0.0)
         yerr = _error_bar(y, entry.get("missed_pct_ci"), 0.0)
-        marker = PRIVILEGED_MARKER if policy.split(":")[0] == PRIVILEGED_KIND else "o"
-        axes.errorbar(x, y, xerr=xerr, yerr=yerr, fmt=marker, capsize=3, markersize=7)
-        axes.annotate(policy, (x, y), xytext=(5, 5), textcoords="offset points", fontsize=8)
+        kind = policy.split(":")[0]
+        marker = {PRIVILEGED_KIND: PRIVILEGED_MARKER, PPO_SPEC_PREFIX[:-1]: LEARNED_MARKER}.get(
+            kind, "o"
+        )
+        axes.errorbar(
+            x, y, xerr=xerr, yerr=yerr, fmt=marker, capsize=3, markersize=7,
+            color=colors[index % len(colors)], label=short_label(policy),
+        )  # fmt: skip
         if policy.startswith(PPO_SPEC_PREFIX):
-            front.append((x, y))
+            learned.append((x, y))
+    front = learned_front(learned)
     if len(front) > 1:
-        xs, ys = zip(*sorted(front), strict=True)
+        xs, ys = zip(*front, strict=True)
         axes.plot(xs, ys, "--", color="0.4", linewidth=1, label="learned front")
-        axes.legend(loc="upper right", fontsize=8)
+    axes.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     axes.set_ylim(bottom=0.0)
-    axes.margins(x=0.3)  # room for the labels
+    axes.set_xlim(left=0.0)
     axes.set_xlabel("scan time (s), mean [95 % CI over trees]")
     axes.set_ylabel("missed secondary branches (%) [95 % CI]")
     axes.set_title("Missed branches against scan time")
     axes.grid(alpha=0.3)
     figure.tight_layout()
     figure.savefig(path, dpi=120)
+
+
+def short_label(policy: str) -> str:
+    """A policy spec as the plot names it: a model path shortened to its file's stem.
+
+    >>> short_label("ppo:research/records/run/refit.zip@400")
+    'ppo:refit@400'
+    >>> short_label("periodic:22.5:1.5")
+    'periodic:22.5:1.5'
+    """
+    if not policy.startswith(PPO_SPEC_PREFIX):
+        return policy
+    path, separator, price = policy[len(PPO_SPEC_PREFIX) :].partition(PRICE_SEPARATOR)
+    return f"{PPO_SPEC_PREFIX}{Path(path).stem}{separator}{price}"
+
+
+def learned_front(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """The non-dominated (scan time, missed) points, by scan time: each misses fewer than all
+    faster ones.
+
+    >>> learned_front([(30.0, 5.0), (20.0, 8.0), (40.0, 6.0), (50.0, 4.0)])
+    [(20.0, 8.0), (30.0, 5.0), (50.0, 4.0)]
+    """
+    front: list[tuple[float, float]] = []
+    for x, y in sorted(points):
+        if not front or y < front[-1][1]:
+            front.append((x, y))
+    return front
 
 
 def _error_bar(value: float, interval: list[float] | None, fallback: float) -> list[list[float]]:
