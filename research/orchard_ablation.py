@@ -29,6 +29,7 @@ from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.report import format_comparison
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WorldConfig
+from recon.config import modeler_overrides
 
 POLICIES = ("none", "periodic:22.5:1.5")
 
@@ -61,9 +62,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument(
+        "--modeler",
+        nargs="+",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="reconstruction settings as eval.py's (recon.config.ModelerConfig fields, JSON "
+        "values), e.g. primary_max_turn_deg=null primary_model_vouches=false (the paper's rule)",
+    )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
     scan = ScanConfig(world=variant_world(args.variant))
+    if args.modeler:
+        scan = scan.replace(
+            modeler=dataclasses.replace(scan.modeler, **modeler_overrides(args.modeler))
+        )
     config = EvalConfig(POLICIES, args.trees, args.seed, args.workers, scan)
     bar = tqdm(total=len(config.keys), unit="trial")
     outcome = run_evaluation(
