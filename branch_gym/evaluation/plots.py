@@ -30,8 +30,9 @@ ABOVE_SCAN_M = 0.10
 # View from the camera's side (it looks along +y), a little from above and to the left.
 VIEW_ELEVATION_DEG = 15.0
 VIEW_AZIMUTH_DEG = -70.0
-PRIVILEGED_MARKER = "*"
+FIXED_MARKER = "o"
 LEARNED_MARKER = "s"
+PRIVILEGED_MARKER = "*"
 POINT_COLORMAP = "tab20"  # 20 distinct colours: a benchmark compares up to ~17 policies
 
 
@@ -78,15 +79,18 @@ def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
         x, y = time_s["mean"], missed
         xerr = _error_bar(x, entry.get("scan_time_s_ci"), time_s["std"] or 0.0)
         yerr = _error_bar(y, entry.get("missed_pct_ci"), 0.0)
-        kind = policy.split(":")[0]
-        marker = {PRIVILEGED_KIND: PRIVILEGED_MARKER, PPO_SPEC_PREFIX[:-1]: LEARNED_MARKER}.get(
-            kind, "o"
-        )
+        is_learned = policy.startswith(PPO_SPEC_PREFIX)
+        if is_learned:
+            marker = LEARNED_MARKER
+        elif policy.split(":")[0] == PRIVILEGED_KIND:
+            marker = PRIVILEGED_MARKER
+        else:
+            marker = FIXED_MARKER
         axes.errorbar(
             x, y, xerr=xerr, yerr=yerr, fmt=marker, capsize=3, markersize=7,
             color=colors[index % len(colors)], label=short_label(policy),
         )  # fmt: skip
-        if policy.startswith(PPO_SPEC_PREFIX):
+        if is_learned:
             learned.append((x, y))
     front = learned_front(learned)
     if len(front) > 1:
