@@ -6,6 +6,7 @@ where the authors' code differs).
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 from collections.abc import Sequence
@@ -297,6 +298,22 @@ class ModelerConfig:
         if self.secondary_min_reach_m is None:
             resolved["secondary_min_reach_m"] = LEARNED_MASK_MIN_REACH_M if learned else 0.0
         return replace(self, **resolved) if resolved else self
+
+
+def add_modeler_argument(parser: argparse.ArgumentParser, example: str) -> None:
+    """Add ``--modeler FIELD=VALUE ...`` to a command line (read it with :func:`modeler_overrides`).
+
+    Args:
+        parser: The command's parser.
+        example: What the settings apply over, with an example, for the help text.
+    """
+    parser.add_argument(
+        "--modeler",
+        nargs="+",
+        default=[],
+        metavar="FIELD=VALUE",
+        help=f"reconstruction settings (recon.config.ModelerConfig fields, JSON values) {example}",
+    )
 
 
 def modeler_overrides(items: Sequence[str]) -> dict[str, object]:

@@ -47,7 +47,12 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from recon.config import ModelerConfig, is_learned_segmenter, modeler_overrides
+from recon.config import (
+    ModelerConfig,
+    add_modeler_argument,
+    is_learned_segmenter,
+    modeler_overrides,
+)
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
 from recon.io.mesh import TubeMeshConfig, tree_mesh, write_ply
@@ -570,13 +575,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--tracker", choices=TRACKERS, default="lk")
     parser.add_argument("--seed", type=int, help="modeler seed (default: the recording's, or 0)")
-    parser.add_argument(
-        "--modeler",
-        nargs="+",
-        default=[],
-        metavar="FIELD=VALUE",
-        help="reconstruction settings over the recording's (ModelerConfig fields, JSON values), "
-        "e.g. secondary_trust_tolerance_px=4 for masks of your own learned segmenter",
+    add_modeler_argument(
+        parser,
+        "over the recording's, e.g. secondary_trust_tolerance_px=4 for masks of your own learned "
+        "segmenter",
     )
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     parser.add_argument(

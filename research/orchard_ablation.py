@@ -29,7 +29,7 @@ from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.report import format_comparison
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WorldConfig
-from recon.config import modeler_overrides
+from recon.config import add_modeler_argument, modeler_overrides
 
 POLICIES = ("none", "periodic:22.5:1.5")
 
@@ -62,13 +62,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument(
-        "--modeler",
-        nargs="+",
-        default=[],
-        metavar="FIELD=VALUE",
-        help="reconstruction settings as eval.py's (recon.config.ModelerConfig fields, JSON "
-        "values), e.g. primary_max_turn_deg=null primary_model_vouches=false (the paper's rule)",
+    add_modeler_argument(
+        parser, "over the defaults, e.g. primary_max_turn_deg=null primary_model_vouches=false"
     )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)

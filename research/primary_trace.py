@@ -32,7 +32,7 @@ from branch_gym.env.config import tree_config
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WorldConfig
-from recon.config import modeler_overrides
+from recon.config import add_modeler_argument, modeler_overrides
 
 _TILE_COLUMNS = 4
 
@@ -98,7 +98,7 @@ def main() -> None:
     parser.add_argument("--world", default="orchard", choices=("clean", "orchard"))
     parser.add_argument("--tree", default="paper", help="tree preset (eval.py --tree)")
     parser.add_argument("--segmenter", default="learned", help="'gt' or learned[:PATH]")
-    parser.add_argument("--modeler", nargs="*", default=[], help="ModelerConfig FIELD=VALUE")
+    add_modeler_argument(parser, "over the defaults, e.g. primary_max_turn_deg=null")
     parser.add_argument("--first", type=int, default=1, help="first iteration drawn")
     parser.add_argument("--last", type=int, default=None, help="last iteration drawn")
     parser.add_argument("--out", type=Path, default=None, help="PNG of the tiles")

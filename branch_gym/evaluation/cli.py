@@ -48,7 +48,7 @@ from branch_gym.evaluation.report import failure_reasons, format_comparison
 from branch_gym.evaluation.runner import ConfigMismatchError
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WORLDS, WorldConfig
-from recon.config import modeler_overrides
+from recon.config import add_modeler_argument, modeler_overrides
 
 EXIT_USAGE = 2
 EXIT_TRIAL_FAILED = 1
@@ -93,14 +93,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--end-height", type=float, metavar="M", help="scan end height (m); lower for quick runs"
     )
-    parser.add_argument(
-        "--modeler",
-        nargs="+",
-        default=[],
-        metavar="FIELD=VALUE",
-        help="reconstruction settings (recon.config.ModelerConfig fields, JSON values), e.g. "
-        "secondary_trust_tolerance_px=0",
-    )
+    add_modeler_argument(parser, "over the defaults, e.g. secondary_trust_tolerance_px=0")
     parser.add_argument(
         "--record",
         type=Path,

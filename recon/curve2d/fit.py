@@ -135,8 +135,9 @@ def _primary(
     primary = make_curve2d(curve, pixels, radii, score, fraction, config)
     if primary.length_px < config.min_primary_length_px:
         return path, None, evaluated, truncated
-    vouched = prior is not None and prior.vouches and prior.agrees(curve)
-    if not vouched and not _branch_like(primary, pixels, direction, shape, config):
+    if not _branch_like(primary, pixels, direction, shape, config) and not (
+        prior is not None and prior.vouches and prior.agrees(curve)  # the model vouches for it
+    ):
         return path, None, evaluated, truncated
     return path, primary, evaluated, truncated
 
