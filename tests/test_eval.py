@@ -31,6 +31,7 @@ from branch_gym.evaluation.runner import (
 )
 from branch_gym.evaluation.trials import (
     TrialRecord,
+    code_version,
     config_hash,
     config_to_dict,
     json_scalar,
@@ -204,6 +205,9 @@ def test_trial_file_round_trip_and_atomic_write(tmp_path: Path) -> None:
     assert [p.name for p in path.parent.iterdir()] == ["1.json"]  # no temporary file left
     back = load_trial(path)
     assert back.to_json_dict() == record.to_json_dict()
+    older = back.to_json_dict()
+    del older["code_version"]  # trial files written before the code version was recorded
+    assert TrialRecord.from_json_dict(older).code_version is None
     assert back.failure == "singularity" and back.row["sb_residual_mean_m"] == "nan"
     stale = path.with_name(".2.json.abc123.tmp")  # left by a run killed while writing
     stale.write_text("{")
@@ -457,6 +461,34 @@ def test_a_trial_that_raises_ends_the_run_with_one_line(tmp_path: Path, capsys) 
     assert len(lines) == 1
     assert f"trial 'ppo:{corrupt}' seed 0" in lines[0] and "not a readable" in lines[0]
     assert "Traceback" in (out / eval_cli.ERROR_LOG).read_text()
+
+
+def test_trials_run_by_other_code_are_reused_with_a_warning_and_rerun_on_request(
+    tmp_path: Path, capsys, caplog
+) -> None:
+    # The cache keys on the scan configuration: a code change keeps the hash, so the trial
+    # records the code that ran it, and a reuse under other code says so.
+    out = tmp_path / "out"
+    argv = ["--policies", "none", "--trees", "1", "--out", str(out), "--end-height", "0.36"]
+    assert eval_cli.main(argv) == 0
+    path = trial_path(out, "none", 0)
+    data = json.loads(path.read_text())
+    assert data["code_version"] == code_version() is not None
+    data["code_version"] = "git:0123456789ab"  # as if an older commit had run it
+    path.write_text(json.dumps(data))
+    first = (out / "summary.json").read_bytes()
+
+    assert eval_cli.main(argv) == 0
+    assert "0 trials run, 1 loaded" in capsys.readouterr().out
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert any("1 of 1 trials" in m and "git:0123456789ab" in m for m in warnings)
+    caplog.clear()
+
+    assert eval_cli.main([*argv, "--rerun"]) == 0
+    assert "1 trials run, 0 loaded" in capsys.readouterr().out
+    assert json.loads(path.read_text())["code_version"] == code_version()
+    assert not [r for r in caplog.records if r.levelname == "WARNING"]
+    assert (out / "summary.json").read_bytes() == first  # the same code gives the same trial
 
 
 def test_record_writes_a_replayable_scan_folder_per_trial(tmp_path: Path) -> None:

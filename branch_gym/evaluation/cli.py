@@ -60,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n", 1)[0],
         epilog="Trials already saved in --out (same policy, seed and scan configuration) are "
-        "loaded instead of re-run; --out holding trials of another configuration is refused.",
+        "loaded instead of re-run (with a warning when other code ran them; --rerun runs them "
+        "again); --out holding trials of another configuration is refused.",
     )
     parser.add_argument(
         "--policies",
@@ -100,6 +101,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="also record every trial run as a scan folder DIR/POLICY/seed_SEED "
         "(replay with python -m recon.replay; docs/replay.md)",
+    )
+    parser.add_argument(
+        "--rerun",
+        action="store_true",
+        help="run every trial again, replacing those saved in --out (e.g. after a code change)",
     )
     parser.add_argument(
         "--plot-trees",
@@ -159,7 +165,9 @@ def main(argv: list[str] | None = None) -> int:
         bar.update(1)
 
     try:
-        outcome = run_evaluation(config, args.out, args.plot_trees, on_start, on_done)
+        outcome = run_evaluation(
+            config, args.out, args.plot_trees, on_start, on_done, rerun=args.rerun
+        )
     except (ConfigMismatchError, ValueError, ConnectionError) as exc:  # Connection: Ray address
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE

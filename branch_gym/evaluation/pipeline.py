@@ -7,8 +7,9 @@ rebuilt from the saved trial files, so a resumed run and a fresh one give the sa
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from branch_gym.evaluation.config import EvalConfig, TrialKey
@@ -20,7 +21,9 @@ from branch_gym.evaluation.runner import (
     pending_trials,
     run_trials,
 )
-from branch_gym.evaluation.trials import TrialRecord, remove_partial_writes
+from branch_gym.evaluation.trials import TrialRecord, code_version, remove_partial_writes
+
+logger = logging.getLogger(__name__)
 
 DEFAULT_PLOT_TREES = 2
 
@@ -34,12 +37,15 @@ class EvalOutcome:
         records: All trials, policy order then seed.
         computed: The trials run this time (the others were loaded), in completion order.
         files: Every output file written (trial files aside).
+        other_code: The loaded trials that another version of the code ran, or one that did not
+            record its version (:func:`other_code_trials`).
     """
 
     summary: dict
     records: list[TrialRecord]
     computed: list[TrialKey]
     files: list[Path]
+    other_code: list[TrialKey] = field(default_factory=list)
 
 
 def default_plot_seeds(config: EvalConfig) -> list[int]:
@@ -53,8 +59,12 @@ def run_evaluation(
     plot_seeds: Sequence[int] | None = None,
     on_start: Callable[[int, int], None] | None = None,
     on_done: Callable[[TrialKey], None] | None = None,
+    rerun: bool = False,
 ) -> EvalOutcome:
     """Run (or resume) an evaluation into ``out`` and write its outputs.
+
+    Saved trials of the same configuration are loaded, not run again; those that another
+    version of the code ran are reused too, with a warning (``rerun`` runs them all again).
 
     Args:
         config: Policies, trees, workers, scan configuration.
@@ -62,6 +72,7 @@ def run_evaluation(
         plot_seeds: Tree seeds to draw; the first two by default.
         on_start: Called once with (all trials, trials already saved) before running any.
         on_done: Called after each trial run is saved.
+        rerun: Run every trial again, replacing the saved ones (e.g. after a code change).
 
     Raises:
         ValueError: a seed to plot is not among the evaluated ones.
@@ -78,12 +89,37 @@ def run_evaluation(
     out.mkdir(parents=True, exist_ok=True)
     check_output_folder(config, out)
     remove_partial_writes(out)
-    todo = pending_trials(config, out)
+    todo = list(config.keys) if rerun else pending_trials(config, out)
     if on_start is not None:
         on_start(len(config.keys), len(config.keys) - len(todo))
     computed = run_trials(config, out, todo, on_done)
     records = load_records(config, out)
+    version = code_version()
+    other_code = other_code_trials(records, version)
+    if other_code:
+        theirs = sorted({str(r.code_version) for r in records if r.code_version != version})
+        logger.warning(
+            "%d of %d trials loaded from %s were run by other code (%s; now %s): they are "
+            "reused as saved; run again with --rerun (or another --out) to refresh them",
+            len(other_code),
+            len(records),
+            out,
+            ", ".join(theirs),
+            version,
+        )
     summary = write_report(out, config, records)
     files = [out / name for name in ("summary.json", "table.md", "trials.csv", "branches.csv")]
     files += write_figures(out, summary, records, plot_seeds)
-    return EvalOutcome(summary, records, computed, files)
+    return EvalOutcome(summary, records, computed, files, other_code)
+
+
+def other_code_trials(records: Sequence[TrialRecord], version: str | None) -> list[TrialKey]:
+    """The trials whose recorded code version is not ``version`` (None: not recorded).
+
+    >>> from types import SimpleNamespace as Trial
+    >>> trials = [Trial(policy="none", seed=0, code_version="git:a"),
+    ...           Trial(policy="none", seed=1, code_version=None)]
+    >>> other_code_trials(trials, "git:a")
+    [('none', 1)]
+    """
+    return [(r.policy, r.seed) for r in records if r.code_version != version]

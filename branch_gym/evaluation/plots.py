@@ -96,7 +96,8 @@ def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
     if len(front) > 1:
         xs, ys = zip(*front, strict=True)
         axes.plot(xs, ys, "--", color="0.4", linewidth=1, label="learned front")
-    axes.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
+    if axes.get_legend_handles_labels()[0]:  # none when no policy has a scan time yet
+        axes.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=8, frameon=False)
     axes.set_ylim(bottom=0.0)
     axes.set_xlim(left=0.0)
     axes.set_xlabel("scan time (s), mean [95 % CI over trees]")

@@ -25,7 +25,7 @@ from typing import Any
 
 from branch_gym.evaluation.config import EvalConfig, TrialError, TrialKey
 from branch_gym.evaluation.episodes import run_trial
-from branch_gym.evaluation.trials import TrialRecord, trial_path
+from branch_gym.evaluation.trials import TrialRecord, code_version, trial_path
 from branch_gym.files import write_json_atomic
 from branch_gym.scan import ScanConfig
 
@@ -124,8 +124,13 @@ def init_local(ray: ModuleType, num_cpus: int) -> None:
     ray.init(address=LOCAL_ADDRESS, num_cpus=num_cpus, include_dashboard=False)
 
 
-def trial_json(policy: str, seed: int, scan: ScanConfig, scan_hash: str) -> dict[str, Any]:
+def trial_json(
+    policy: str, seed: int, scan: ScanConfig, scan_hash: str, code_version: str | None = None
+) -> dict[str, Any]:
     """Run one trial and return its record as strict JSON (the body of a Ray task).
+
+    ``code_version`` is the driver's (:func:`~branch_gym.evaluation.trials.code_version`): a
+    cluster's workers need not run from a git checkout.
 
     Raises:
         TrialError: the trial raised (the message names it).
@@ -134,7 +139,7 @@ def trial_json(policy: str, seed: int, scan: ScanConfig, scan_hash: str) -> dict
         result = run_trial(seed, policy, scan)
     except Exception as exc:
         raise TrialError(f"trial {policy!r} seed {seed} raised {exc!r}") from exc
-    return TrialRecord.from_scan(result, policy, scan_hash).to_json_dict()
+    return TrialRecord.from_scan(result, policy, scan_hash, code_version).to_json_dict()
 
 
 def run_trials_ray(
@@ -166,13 +171,14 @@ def run_trials_ray(
     workers = min(config.workers, len(keys))
     with ray_session(config.address, workers) as ray:
         task = ray.remote(num_cpus=CPUS_PER_TRIAL)(trial_json)
+        version = code_version()
         queue = list(reversed(keys))  # popped from the end: table order
         running: dict[Any, TrialKey] = {}
         try:
             while queue or running:
                 while queue and len(running) < workers:
                     policy, seed = queue.pop()
-                    ref = task.remote(policy, seed, config.scan, config.scan_hash)
+                    ref = task.remote(policy, seed, config.scan, config.scan_hash, version)
                     running[ref] = (policy, seed)
                 (ready,), _ = ray.wait(list(running), num_returns=1)
                 key = running.pop(ready)

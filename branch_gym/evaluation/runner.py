@@ -36,6 +36,7 @@ from branch_gym.evaluation.ray_backend import run_trials_ray
 from branch_gym.evaluation.trials import (
     TRIALS_DIR,
     TrialRecord,
+    code_version,
     config_to_dict,
     load_trial,
     policy_slug,
@@ -182,7 +183,7 @@ def run_trials(
     if config.backend == "ray":
         return run_trials_ray(config, out, keys, on_done)
     tasks = [
-        _Task(policy, seed, config.scan, config.scan_hash, out, config.record_dir)
+        _Task(policy, seed, config.scan, config.scan_hash, out, code_version(), config.record_dir)
         for policy, seed in keys
     ]
     done: list[TrialKey] = []
@@ -245,6 +246,7 @@ class _Task:
     scan: ScanConfig
     scan_hash: str
     out: Path
+    code_version: str | None = None
     record_dir: Path | None = None
 
     def recording(self) -> Recording | None:
@@ -285,7 +287,7 @@ def _run_task(task: _Task) -> TrialKey:
         raise TrialError(f"trial {task.policy!r} seed {task.seed} raised {exc!r}") from exc
     save_trial(
         trial_path(task.out, task.policy, task.seed),
-        TrialRecord.from_scan(result, task.policy, task.scan_hash),
+        TrialRecord.from_scan(result, task.policy, task.scan_hash, task.code_version),
     )
     logger.info(
         "trial %s seed %d: %.1f s, failure %s",

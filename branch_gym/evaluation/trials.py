@@ -2,9 +2,9 @@
 
 A trial file ``OUT/trials/<policy-slug>/<seed>.json`` holds the scan's flat row (for
 ``trials.csv``), the full metrics (lossless, :meth:`recon.metrics.TreeMetrics.to_json_dict`), the
-reconstruction and the ground truth (for the figures), and the hash of the scan configuration it
-was run with. Files are written atomically (temporary file, then rename): a killed run leaves
-either a whole trial file or none.
+reconstruction and the ground truth (for the figures), the hash of the scan configuration it
+was run with and the version of the code that ran it (:func:`code_version`). Files are written
+atomically (temporary file, then rename): a killed run leaves either a whole trial file or none.
 
 Non-finite floats are written as the strings ``"nan"``, ``"inf"`` and ``"-inf"`` (strict JSON;
 ``float()`` reads them back, and ``csv`` writes a float NaN as ``nan`` too).
@@ -12,10 +12,13 @@ Non-finite floats are written as the strings ``"nan"``, ``"inf"`` and ``"-inf"``
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import importlib.metadata
 import json
 import math
 import re
+import subprocess
 from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any
@@ -29,6 +32,8 @@ from recon.model import TreeModel
 
 TRIAL_FORMAT = 1
 TRIALS_DIR = "trials"
+PACKAGE = "branch_gym"  # the distribution whose version names the code outside a git checkout
+GIT_TIMEOUT_S = 10.0
 Scalar = float | int | str | bool | None
 
 
@@ -49,6 +54,8 @@ class TrialRecord:
         failure: The failure reason, or None when the scan reached its end height.
         branches: One row per ground-truth secondary (``ScanResult.branches``), non-finite
             floats as strings; empty in trial files written before the attribution existed.
+        code_version: :func:`code_version` of the code that ran the trial; None in trial files
+            written before it was recorded.
     """
 
     policy: str
@@ -62,15 +69,19 @@ class TrialRecord:
     rotations: int
     failure: str | None
     branches: list[dict[str, Scalar]] = field(default_factory=list)
+    code_version: str | None = None
 
     @classmethod
-    def from_scan(cls, result: Any, policy: str, config_hash: str) -> TrialRecord:
+    def from_scan(
+        cls, result: Any, policy: str, config_hash: str, code_version: str | None = None
+    ) -> TrialRecord:
         """Build a record from a ``branch_gym.scoring.ScanResult``.
 
         Args:
             result: The scan's result.
             policy: The policy spec as requested (the row's ``policy`` is set to it).
             config_hash: Hash of the scan configuration it ran with.
+            code_version: The code that ran it (:func:`code_version`), if known.
         """
         truth = result.truth
         row = {str(k): json_scalar(v) for k, v in result.to_row().items()}
@@ -87,6 +98,7 @@ class TrialRecord:
             rotations=int(result.rotations),
             failure=None if result.failure is None else str(result.failure),
             branches=[{k: json_scalar(v) for k, v in row.items()} for row in result.branches],
+            code_version=code_version,
         )
 
     def to_json_dict(self) -> dict:
@@ -104,6 +116,7 @@ class TrialRecord:
             "model": self.model.to_dict(),
             "truth": self.truth.to_dict(),
             "branches": self.branches,
+            "code_version": self.code_version,
         }
 
     @classmethod
@@ -123,7 +136,42 @@ class TrialRecord:
             rotations=int(data["rotations"]),
             failure=data["failure"],
             branches=list(data.get("branches", [])),
+            code_version=data.get("code_version"),
         )
+
+
+@functools.cache
+def code_version() -> str | None:
+    """The version of the code that runs trials, as a trial file records it.
+
+    A trial is a pure function of its seed, policy and scan configuration only for one version
+    of the code: saved trials are reused under the same configuration hash, so a changed code
+    path would otherwise mix old and new trials silently (the evaluation warns instead).
+
+    Returns:
+        ``"git:<commit>"`` (``git describe --always --dirty``: ``-dirty`` when tracked files
+        differ from the commit) when the package runs from a git checkout, else
+        ``"package:<version>"`` of the installed distribution; None when neither is known.
+    """
+    root = Path(__file__).resolve().parents[2]
+    if (root / ".git").exists():
+        try:
+            described = subprocess.run(
+                ["git", "describe", "--always", "--dirty", "--abbrev=12"],
+                cwd=root,
+                capture_output=True,
+                text=True,
+                timeout=GIT_TIMEOUT_S,
+                check=True,
+            ).stdout.strip()
+        except (OSError, subprocess.SubprocessError):
+            described = ""
+        if described:
+            return f"git:{described}"
+    try:
+        return f"package:{importlib.metadata.version(PACKAGE)}"
+    except importlib.metadata.PackageNotFoundError:
+        return None
 
 
 def json_scalar(value: Any) -> Scalar:
