@@ -48,7 +48,8 @@ class TestTimeSegmenter:
         logit_shift: float = 0.0,
     ) -> None:
         self.segmenter, self.scale, self.mirrored = segmenter, scale, mirrored
-        self.threshold = segmenter._logit_threshold + logit_shift
+        probability = segmenter.threshold
+        self.threshold = float(np.log(probability / (1.0 - probability))) + logit_shift
 
     def _logits(self, rgb, previous_rgb, flow_image) -> np.ndarray:
         height, width = rgb.shape[:2]
