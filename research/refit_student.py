@@ -7,6 +7,9 @@ own ``--resume`` fits the next round's student with changed settings, but plays 
     python research/refit_student.py research/records/aggrevate_orchard_v2 runs/refit/rw8.zip \
         --set rotation_weight=8
 
+``--also RUN ...`` adds the labels of other runs of the same training settings (``train``), e.g.
+a run whose students visited states the first run's did not.
+
 Writes the student (an SB3 zip, ``ppo:PATH`` in ``eval.py``) and prints the fit's scores.
 """
 
@@ -39,6 +42,9 @@ def main() -> None:
     parser.add_argument("run", type=Path, help="an imitation run folder (or a kept record)")
     parser.add_argument("out", type=Path, help="the student's .zip")
     parser.add_argument("--set", nargs="*", default=[], help="fit settings, FIELD=JSON")
+    parser.add_argument(
+        "--also", nargs="*", type=Path, default=[], help="more runs whose labels join the fit"
+    )
     args = parser.parse_args()
     config = ImitationConfig.from_dict(json.loads((args.run / CONFIG_FILE).read_text()))
     changes = {}
@@ -52,6 +58,13 @@ def main() -> None:
     config = replace(config, **changes)
     rounds = finished_rounds(args.run, config.rounds)
     data = RoundData.load_rounds(args.run, list(range(rounds)))
+    for other in args.also:
+        theirs = ImitationConfig.from_dict(json.loads((other / CONFIG_FILE).read_text()))
+        if theirs.train != config.train:
+            raise SystemExit(f"--also {other}: its training settings differ from {args.run}'s")
+        more = finished_rounds(other, theirs.rounds)
+        data = RoundData.concatenate([data, RoundData.load_rounds(other, list(range(more)))])
+        rounds += more
     env = gym.make(config.train.env_id, **config.train.env_kwargs())
     try:
         model = new_student(config, env)
