@@ -25,7 +25,7 @@ from branch_gym.segmenter_training.evaluate import EvaluateConfig, evaluate_segm
 from branch_gym.segmenter_training.real_frames import load_real_frames, score_segmenter, summarise
 from recon.segmentation import LearnedSegmenter, load_segmenter
 
-SCALES = (0.75, 0.9, 1.0, 1.25)
+SCALES = (0.75, 0.9, 1.25)  # the shipped variant is 1.0
 LOGIT_SHIFTS = (-1.0, -0.5, 0.5, 1.0)  # added to the threshold's logit (0: probability 0.5)
 PRESETS = ("paper", "ufo")
 
@@ -84,8 +84,7 @@ def variants(segmenter: LearnedSegmenter) -> dict[str, TestTimeSegmenter]:
         "mirrored": TestTimeSegmenter(segmenter, mirrored=True),
     }
     for scale in SCALES:
-        if scale != 1.0:
-            found[f"scale {scale}"] = TestTimeSegmenter(segmenter, scale=scale)
+        found[f"scale {scale}"] = TestTimeSegmenter(segmenter, scale=scale)
     for shift in LOGIT_SHIFTS:
         found[f"threshold logit {shift:+}"] = TestTimeSegmenter(segmenter, logit_shift=shift)
     return found
