@@ -24,6 +24,7 @@ from branch_gym.segmenter_training.evaluate import (
 )
 from branch_gym.segmenter_training.generate import generate_shard, shard_path, write_shard
 from branch_gym.segmenter_training.train import PairBatches, segmentation_loss, train
+from branch_gym.sim.scene.labels import PART_NAMES, label_parts
 from recon.segmentation.inputs import FlowConfig
 from recon.segmentation.network import SegmenterNet, SegmenterNetConfig, count_parameters
 from recon.segmentation.segmenter import LearnedSegmenter, default_weights_path, load_segmenter
@@ -217,3 +218,35 @@ def test_evaluation_views_after_an_orbit_are_scored_too() -> None:
     result = evaluate_segmenter(load_segmenter("learned"), "paper", config, progress=False)
     assert result["frames"] == 2 and result["iou"] >= 0.8
     assert 0.0 <= result["side_branch_recall"] <= 1.0
+
+
+def test_label_parts_names_what_each_pixel_shows() -> None:
+    n = 3  # secondaries 2-4, details 5, uprights 6
+    labels = np.array([[0, 1, 2, 4, 5, 6], [7, 100, 200, 201, 202, 203], [300, 301, 305, 99, 1, 1]])
+    names = np.array(PART_NAMES)[label_parts(labels, n)]
+    assert names.tolist() == [
+        ["background", "primary", "side_branches", "side_branches", "details", "own_uprights"],
+        ["other", "clutter", "sky", "ground", "posts", "wires"],
+        ["row_neighbours", "back_rows", "back_rows", "other", "primary", "primary"],
+    ]
+    with pytest.raises(ValueError, match="labels must be >= 0"):
+        label_parts(np.array([[-1]]), n)
+
+
+class _TakesEverything:
+    def segment(self, rgb: np.ndarray, previous_rgb: np.ndarray | None = None) -> np.ndarray:
+        return np.ones(rgb.shape[:2], bool)
+
+
+def test_evaluation_attributes_wrong_pixels_to_what_they_show() -> None:
+    """A segmenter that takes every pixel: its false positives are the frame's parts outside
+    the tree, in their shares, and it misses nothing."""
+    config = EvaluateConfig(trees=1, frames_per_tree=1, world="orchard")
+    result = evaluate_segmenter(_TakesEverything(), "paper", config, progress=False)
+    *_, labels, details = next(render_eval_frames("paper", EVAL_SEED_OFFSET, config))
+    parts = np.array(PART_NAMES)[label_parts(labels, details - 2)[(labels < 1) | (labels >= 100)]]
+    names, counts = np.unique(parts, return_counts=True)
+    expected = dict(zip(names.tolist(), (counts / counts.sum()).tolist(), strict=True))
+    assert result["false_positive_parts"] == pytest.approx(expected)
+    assert {"sky", "ground"} <= set(expected) and result["missed_parts"] == {}
+    assert list(result["false_positive_parts"].values()) == sorted(expected.values(), reverse=True)

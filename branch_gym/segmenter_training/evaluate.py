@@ -20,7 +20,12 @@ from tqdm import tqdm
 from branch_gym.segmenter_training.config import EVAL_SEED_OFFSET
 from branch_gym.segmenter_training.generate import branch_mask, preset_tree_config
 from branch_gym.segmenter_training.orchard_pairs import orbit_camera
-from branch_gym.sim.scene.labels import FIRST_SECONDARY_LABEL, details_label
+from branch_gym.sim.scene.labels import (
+    FIRST_SECONDARY_LABEL,
+    PART_NAMES,
+    details_label,
+    label_parts,
+)
 from branch_gym.sim.world import World, WorldConfig
 from recon.segmentation.metrics import mask_iou, pooled_iou
 from recon.segmentation.segmenter import LearnedSegmenter
@@ -111,6 +116,9 @@ def evaluate_segmenters(
     side_counts = {name: [0, 0] for name in variants}  # side-branch pixels found, all
     scored_side_counts = {name: [0, 0] for name in variants}  # the same, details left out
     per_frame: dict[str, list[float]] = {name: [] for name in variants}
+    n_parts = len(PART_NAMES)
+    wrong_parts = {name: np.zeros(n_parts, np.int64) for name in variants}
+    missed_parts = {name: np.zeros(n_parts, np.int64) for name in variants}
     times: dict[str, list[float]] = {name: [] for name in variants}
     seeds = range(EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + config.trees)
     for seed in tqdm(seeds, desc=f"eval {preset}", unit="tree", disable=not progress):
@@ -118,6 +126,7 @@ def evaluate_segmenters(
             truth = branch_mask(labels)
             side = truth & (labels >= FIRST_SECONDARY_LABEL)
             scored = labels != details
+            parts = label_parts(labels, details - FIRST_SECONDARY_LABEL)
             for name, (segmenter, use_previous) in variants.items():
                 t0 = time.perf_counter()
                 mask = segmenter.segment(rgb, previous if use_previous else None)
@@ -127,6 +136,8 @@ def evaluate_segmenters(
                 scored_counts[name][0] += int(np.count_nonzero(mask & truth & scored))
                 scored_counts[name][1] += int(np.count_nonzero((mask | truth) & scored))
                 per_frame[name].append(mask_iou(mask, truth))
+                wrong_parts[name] += np.bincount(parts[mask & ~truth], minlength=n_parts)
+                missed_parts[name] += np.bincount(parts[truth & ~mask], minlength=n_parts)
                 side_counts[name][0] += int(np.count_nonzero(mask & side))
                 side_counts[name][1] += int(np.count_nonzero(side))
                 scored_side_counts[name][0] += int(np.count_nonzero(mask & side & scored))
@@ -140,11 +151,20 @@ def evaluate_segmenters(
             "iou_ignoring_details": pooled_iou(*scored_counts[name]),
             "side_branch_recall_without_details": scored_side_counts[name][0]
             / max(scored_side_counts[name][1], 1),
+            "false_positive_parts": _shares(wrong_parts[name]),
+            "missed_parts": _shares(missed_parts[name]),
             "frames": len(per_frame[name]),
             "segment_ms_mean": 1000 * float(np.mean(times[name])),
         }
         for name in variants
     }
+
+
+def _shares(counts: np.ndarray) -> dict[str, float]:
+    """{part: share of the total} for the parts counted at least once, largest first."""
+    total = int(counts.sum())
+    order = np.argsort(-counts, kind="stable")
+    return {PART_NAMES[k]: int(counts[k]) / total for k in order if counts[k] > 0}
 
 
 def evaluate_segmenter(

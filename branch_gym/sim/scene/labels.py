@@ -42,6 +42,7 @@ __all__ = [
     "FIRST_ROW_TREE_LABEL",
     "FIRST_SECONDARY_LABEL",
     "GROUND_LABEL",
+    "PART_NAMES",
     "POST_LABEL",
     "PRIMARY_LABEL",
     "SKY_LABEL",
@@ -49,8 +50,27 @@ __all__ = [
     "details_label",
     "is_occluding_clutter",
     "is_scanned_tree",
+    "label_parts",
     "own_uprights_label",
 ]
+
+# What a pixel shows, in words (:func:`label_parts`): the scanned tree's parts first, then the
+# rest of the scene.
+PART_NAMES = (
+    "primary",
+    "side_branches",
+    "details",
+    "own_uprights",
+    "background",
+    "clutter",
+    "sky",
+    "ground",
+    "posts",
+    "wires",
+    "row_neighbours",
+    "back_rows",
+    "other",
+)
 
 
 def details_label(n_secondaries: int) -> int:
@@ -78,3 +98,43 @@ def is_occluding_clutter(labels: np.ndarray) -> np.ndarray:
     Clutter of the clean world, posts, wires and the row's trees; not the sky or the ground.
     """
     return (labels >= FIRST_CLUTTER_LABEL) & (labels != SKY_LABEL) & (labels != GROUND_LABEL)
+
+
+def label_parts(labels: np.ndarray, n_secondaries: int) -> np.ndarray:
+    """What each pixel shows, as an index into :data:`PART_NAMES`.
+
+    Args:
+        labels: (H, W) integer instance labels (module docstring).
+        n_secondaries: The scanned tree's number of secondaries (places its details and
+            uprights labels).
+
+    Returns:
+        (H, W) uint8 part index; labels outside the table read ``"other"``.
+
+    Raises:
+        ValueError: a negative label or secondary count.
+    """
+    labels = np.asarray(labels)
+    if n_secondaries < 0:
+        raise ValueError(f"n_secondaries must be >= 0, got {n_secondaries}")
+    if labels.size and labels.min() < 0:
+        raise ValueError(f"labels must be >= 0, got {labels.min()}")
+    index = {name: k for k, name in enumerate(PART_NAMES)}
+    top = max(int(labels.max()) if labels.size else 0, FIRST_ROW_TREE_LABEL + 1)
+    table = np.full(top + 1, index["other"], np.uint8)
+    table[BACKGROUND_LABEL] = index["background"]
+    table[PRIMARY_LABEL] = index["primary"]
+    details = details_label(n_secondaries)
+    table[FIRST_SECONDARY_LABEL:details] = index["side_branches"]
+    if details < FIRST_CLUTTER_LABEL:
+        table[details] = index["details"]
+    if details + 1 < FIRST_CLUTTER_LABEL:
+        table[details + 1] = index["own_uprights"]
+    table[FIRST_CLUTTER_LABEL:SKY_LABEL] = index["clutter"]
+    table[SKY_LABEL] = index["sky"]
+    table[GROUND_LABEL] = index["ground"]
+    table[POST_LABEL] = index["posts"]
+    table[WIRE_LABEL] = index["wires"]
+    table[FIRST_ROW_TREE_LABEL] = index["row_neighbours"]
+    table[FIRST_ROW_TREE_LABEL + 1 :] = index["back_rows"]
+    return table[labels]

@@ -1,0 +1,146 @@
+"""Where a segmenter's mask of real frames departs from the hand masks (issue 32, a study).
+
+For each real frame (``score-real``'s folder) and pooled over them: IoU, precision, recall; the
+false positives split by their distance to the hand masks (the mask drawn 1-2 px wider, 3-4 px,
+farther) and the far ones in the frame's bottom fifth (the trunk's base and the ground); the
+pixels missed split the same way from the predicted mask; and the IoU with the hand masks
+shifted by the best whole-pixel offset within ``--max-shift-px`` (a registration check of the
+hand masks, never used to score).
+
+    python research/real_frame_errors.py ../shared/data/real_dev [--weights learned] [--no-flow]
+
+Prints a markdown table. The frames are GPL v3: nothing of them is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from branch_gym.segmenter_training.real_frames import RealFrame, load_real_frames, predict_mask
+from recon.segmentation import load_segmenter
+
+NEAR_PX = 2.0  # "drawn wider": within this of the hand masks (our choice: a trunk's edge blur)
+MIDDLE_PX = 4.0  # "beside it": up to this
+BOTTOM_SHARE = 0.2  # the frame's bottom fifth: the trunk's base, the ground and its weeds
+
+
+@dataclass
+class Counts:
+    """Pixel counts of one frame (or summed)."""
+
+    hit: int = 0
+    wrong_near: int = 0
+    wrong_middle: int = 0
+    wrong_far: int = 0
+    wrong_far_bottom: int = 0
+    missed_near: int = 0
+    missed_far: int = 0
+
+    def __iadd__(self, other: Counts) -> Counts:
+        for name in vars(self):
+            setattr(self, name, getattr(self, name) + getattr(other, name))
+        return self
+
+    @property
+    def wrong(self) -> int:
+        return self.wrong_near + self.wrong_middle + self.wrong_far
+
+    @property
+    def missed(self) -> int:
+        return self.missed_near + self.missed_far
+
+    def iou(self, drop_wrong: int = 0) -> float:
+        return self.hit / (self.hit + self.wrong - drop_wrong + self.missed)
+
+
+def _distance_to(mask: np.ndarray) -> np.ndarray:
+    """(H, W) float32 distance (px) of each pixel to the nearest pixel of ``mask``."""
+    return cv2.distanceTransform((~mask).view(np.uint8), cv2.DIST_L2, 5)
+
+
+def count_errors(predicted: np.ndarray, target: np.ndarray) -> Counts:
+    """The pixel counts of one frame (module docstring)."""
+    to_target, to_predicted = _distance_to(target), _distance_to(predicted)
+    wrong, missed = predicted & ~target, target & ~predicted
+    far = wrong & (to_target > MIDDLE_PX)
+    bottom = np.zeros_like(far)
+    bottom[round((1.0 - BOTTOM_SHARE) * far.shape[0]) :] = True
+    return Counts(
+        hit=int(np.count_nonzero(predicted & target)),
+        wrong_near=int(np.count_nonzero(wrong & (to_target <= NEAR_PX))),
+        wrong_middle=int(np.count_nonzero(wrong & (to_target > NEAR_PX) & ~far)),
+        wrong_far=int(np.count_nonzero(far)),
+        wrong_far_bottom=int(np.count_nonzero(far & bottom)),
+        missed_near=int(np.count_nonzero(missed & (to_predicted <= NEAR_PX))),
+        missed_far=int(np.count_nonzero(missed & (to_predicted > NEAR_PX))),
+    )
+
+
+def best_shift(
+    predicted: np.ndarray, target: np.ndarray, max_shift_px: int
+) -> tuple[tuple[int, int], float]:
+    """((du, dv), IoU): the whole-pixel shift of the target that best fits the prediction."""
+    best = ((0, 0), -1.0)
+    height, width = target.shape
+    padded = np.pad(target, max_shift_px)
+    for dv in range(-max_shift_px, max_shift_px + 1):
+        for du in range(-max_shift_px, max_shift_px + 1):
+            top, left = max_shift_px - dv, max_shift_px - du
+            moved = padded[top : top + height, left : left + width]
+            union = np.count_nonzero(predicted | moved)
+            iou = np.count_nonzero(predicted & moved) / union if union else 0.0
+            if iou > best[1]:
+                best = ((du, dv), iou)
+    return best
+
+
+def _row(name: str, counts: Counts, shift: str) -> str:
+    share = 100.0 / max(counts.wrong, 1)
+    return (
+        f"| {name} | {counts.iou():.3f} | {counts.hit / (counts.hit + counts.wrong):.2f} | "
+        f"{counts.hit / (counts.hit + counts.missed):.2f} | {counts.wrong_near * share:.0f} / "
+        f"{counts.wrong_middle * share:.0f} / {counts.wrong_far * share:.0f} | "
+        f"{100.0 * counts.wrong_far_bottom / max(counts.wrong_far, 1):.0f} | "
+        f"{100.0 * counts.missed_near / max(counts.missed, 1):.0f} | "
+        f"{counts.iou(counts.wrong_near):.3f} / {counts.iou(counts.wrong_far):.3f} | {shift} |"
+    )
+
+
+def report(frames: list[RealFrame], segmenter: object, use_flow: bool, max_shift_px: int) -> str:
+    """The markdown table of every frame and the pooled row."""
+    lines = [
+        "| frame | IoU | precision | recall | wrong pixels within 2 px / 2-4 px / farther, % | "
+        "farther ones in the bottom fifth, % | missed within 2 px of the mask, % | "
+        "IoU without the wrong pixels within 2 px / farther | best hand-mask shift (du, dv): IoU |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    total = Counts()
+    for frame in frames:
+        predicted = predict_mask(segmenter, frame, use_flow)
+        counts = count_errors(predicted, frame.target)
+        total += counts
+        shift, shifted_iou = best_shift(predicted, frame.target, max_shift_px)
+        lines.append(_row(frame.name, counts, f"{shift}: {shifted_iou:.3f}"))
+    lines.append(_row("pooled", total, "-"))
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("data", type=Path, help="a real frame folder (score-real's --data)")
+    parser.add_argument("--weights", default="learned", help="a segmenter spec")
+    parser.add_argument("--no-flow", action="store_true", help="colour alone")
+    parser.add_argument("--max-shift-px", type=int, default=3)
+    args = parser.parse_args()
+    frames = load_real_frames(args.data)
+    segmenter = load_segmenter(args.weights)
+    print(report(frames, segmenter, not args.no_flow, args.max_shift_px))
+
+
+if __name__ == "__main__":
+    main()
