@@ -243,10 +243,11 @@ def test_evaluation_attributes_wrong_pixels_to_what_they_show() -> None:
     the tree, in their shares, and it misses nothing."""
     config = EvaluateConfig(trees=1, frames_per_tree=1, world="orchard")
     result = evaluate_segmenter(_TakesEverything(), "paper", config, progress=False)
-    *_, labels, details = next(render_eval_frames("paper", EVAL_SEED_OFFSET, config))
+    _, _, labels, details, _ = next(render_eval_frames("paper", EVAL_SEED_OFFSET, config))
     parts = np.array(PART_NAMES)[label_parts(labels, details - 2)[(labels < 1) | (labels >= 100)]]
     names, counts = np.unique(parts, return_counts=True)
     expected = dict(zip(names.tolist(), (counts / counts.sum()).tolist(), strict=True))
     assert result["false_positive_parts"] == pytest.approx(expected)
     assert {"sky", "ground"} <= set(expected) and result["missed_parts"] == {}
     assert list(result["false_positive_parts"].values()) == sorted(expected.values(), reverse=True)
+    assert 0.0 <= result["false_positive_in_front"] < 0.5  # the sky and ground lie behind

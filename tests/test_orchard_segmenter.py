@@ -14,6 +14,7 @@ from branch_gym.segmenter_training.config import (
     OrchardAugmentConfig,
     TrainConfig,
 )
+from branch_gym.segmenter_training.generate import TARGET_NEARER_NEGATIVE
 from branch_gym.segmenter_training.orchard_augment import (
     OrchardPairBatches,
     add_far_copy,
@@ -179,6 +180,46 @@ def test_the_target_tells_side_branches_apart_and_the_loss_weighs_them():
     )
     with pytest.raises(ValueError, match="side_branch_weight"):
         TrainConfig(side_branch_weight=0.0)
+
+
+def test_nearer_negatives_are_marked_by_their_flow_and_weighed_as_background():
+    """A neighbour's branch crossing in front of the tree (twice its flow) is marked a nearer
+    negative; one behind it (a third of its flow) and the wire at the tree's flow are not. The
+    loss counts the marked pixels as background, weighed ``nearer_negative_weight`` times."""
+    pair = np.stack(_frames())
+    flow = np.zeros((H, W, 2), np.float32)
+    labels = np.zeros((H, W), np.uint16)
+    labels[:, 10:16], flow[:, 10:16] = 1, (0.0, 8.0)  # the primary, 8 px of flow
+    labels[5:8, :], flow[5:8, :] = 300, (0.0, 16.0)  # a neighbour's branch, in front of it
+    labels[40:43, 20:], flow[40:43, 20:] = 300, (0.0, 2.5)  # another behind
+    labels[25:26, 20:], flow[25:26, 20:] = 203, (0.0, 8.5)  # a wire at the tree's depth
+    config = OrchardAugmentConfig(
+        flip_probability=0.0, distractor_probability=0.0, nearer_negative_flow_ratio=1.15
+    )
+    _, y = training_frame(pair, flow, labels, np.random.default_rng(0), config, (H, W))
+    assert (y[5:8] == TARGET_NEARER_NEGATIVE).all()
+    assert not y[40:43, 20:].any() and not y[25:26, 20:].any()
+    assert (y[8:, 10:16] == 1).all() and (y[:5, 10:16] == 1).all()
+    unmarked = replace(config, nearer_negative_flow_ratio=None)
+    _, plain = training_frame(pair, flow, labels, np.random.default_rng(0), unmarked, (H, W))
+    assert set(np.unique(plain)) == {0, 1}
+    # A network that takes everything: each marked pixel costs `weight` times a background one.
+    logits = torch.full((1, 1, H, W), 2.0)
+    target = torch.from_numpy(y[None, None].astype(np.float32))
+    plain_target = torch.from_numpy(plain[None, None].astype(np.float32))
+    assert float(segmentation_loss(logits, target, 1.0)) == pytest.approx(
+        float(segmentation_loss(logits, plain_target, 1.0)), rel=1e-6
+    )
+    bce = float(torch.nn.functional.softplus(torch.tensor(2.0)))  # per wrongly taken pixel
+    marked = int((y == TARGET_NEARER_NEGATIVE).sum())
+    gap = float(segmentation_loss(logits, target, 0.0, 1.0, 4.0)) - float(
+        segmentation_loss(logits, target, 0.0)
+    )
+    assert gap == pytest.approx(3 * marked * bce / y.size, rel=1e-4)
+    with pytest.raises(ValueError, match="nearer_negative_flow_ratio"):
+        OrchardAugmentConfig(nearer_negative_flow_ratio=0.9)
+    with pytest.raises(ValueError, match="nearer_negative_weight"):
+        TrainConfig(nearer_negative_weight=float("nan"))
 
 
 def test_details_as_background_leaves_spurs_out_of_the_target_and_keeps_uprights():

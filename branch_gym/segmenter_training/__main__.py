@@ -28,6 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from branch_gym.segmenter_training.config import (
+    NEARER_NEGATIVE_FLOW_RATIO,
     FlowAugmentConfig,
     GenerateConfig,
     OrchardAugmentConfig,
@@ -119,9 +120,13 @@ def _train(args: argparse.Namespace) -> None:
         learning_rate=args.learning_rate,
         encoder_learning_rate_scale=args.encoder_learning_rate_scale,
         side_branch_weight=args.side_branch_weight,
+        nearer_negative_weight=args.nearer_negative_weight,
         orchard=replace(
             base.orchard, flow=flow, details_as_background=args.details_as_background,
             overcast_probability=args.overcast_probability,
+            nearer_negative_flow_ratio=(
+                None if args.nearer_negative_weight == 1.0 else args.nearer_negative_flow_ratio
+            ),
         ),
     )  # fmt: skip
     train(
@@ -275,6 +280,14 @@ def main(argv: list[str] | None = None) -> int:
     tr.add_argument(
         "--details-as-background", action="store_true",
         help="the target leaves out the tree's spurs, stubs and buds, as real hand masks do",
+    )  # fmt: skip
+    tr.add_argument(
+        "--nearer-negative-weight", type=float, default=TrainConfig.nearer_negative_weight,
+        help="weight of the pixels of other objects in front of the tree (orchard pairs)",
+    )  # fmt: skip
+    tr.add_argument(
+        "--nearer-negative-flow-ratio", type=float, default=NEARER_NEGATIVE_FLOW_RATIO,
+        help="their flow over the tree's median flow (with --nearer-negative-weight)",
     )  # fmt: skip
     tr.add_argument(
         "--overcast-probability", type=float,

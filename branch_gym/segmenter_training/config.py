@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 
 from recon.segmentation.flow import DIS_PRESETS
@@ -189,6 +190,12 @@ class FlowAugmentConfig:
             )
 
 
+# A nearer negative's flow over the scanned tree's (our choice; OrchardAugmentConfig.
+# nearer_negative_flow_ratio): at the scan's 0.2 m, 1.15 is ~2.6 cm in front of the bark, past
+# the tree's own depth spread (trunks 1-4 cm thick).
+NEARER_NEGATIVE_FLOW_RATIO = 1.15
+
+
 @dataclass(frozen=True)
 class OrchardAugmentConfig:
     """Everything random about a training frame of the flow-picture segmenter.
@@ -214,6 +221,14 @@ class OrchardAugmentConfig:
             2D stage takes a spur in the mask for a short side branch. False: they are the
             scanned tree, as before (the shipped weights until 2026-12-04 were trained so).
             Needs shards that store ``n_secondaries``.
+        nearer_negative_flow_ratio: Mark the pixels of everything else whose exact flow
+            exceeds the scanned tree's median flow in the frame by this factor (under the pair's
+            translation: nearer the camera, e.g. 1.15 at 0.2 m is ~2.6 cm in front) as nearer
+            negatives (target :data:`~branch_gym.segmenter_training.generate.
+            TARGET_NEARER_NEGATIVE`), which ``TrainConfig.nearer_negative_weight`` weighs. The
+            neighbours' branches crossing in front of the tree are most of the false positives
+            on orchard renders (docs/orchard_segmenter.md, "What the wrong pixels show"), and
+            their larger parallax tells them apart. None: not marked.
     """
 
     camera: AugmentConfig = field(default_factory=AugmentConfig)
@@ -226,8 +241,15 @@ class OrchardAugmentConfig:
     overcast_brightness_range: tuple[float, float] = (50.0, 230.0)
     backlight_gain_range: tuple[float, float] = (0.2, 0.8)
     details_as_background: bool = False
+    nearer_negative_flow_ratio: float | None = None
 
     def __post_init__(self) -> None:
+        ratio = self.nearer_negative_flow_ratio
+        if ratio is not None and not (math.isfinite(ratio) and ratio >= 1.0):
+            raise ValueError(
+                "OrchardAugmentConfig.nearer_negative_flow_ratio must be None or a finite "
+                f"factor >= 1, got {ratio!r}"
+            )
         for name in ("flip_probability", "distractor_probability", "overcast_probability"):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
@@ -271,6 +293,9 @@ class TrainConfig:
             pixel). Side branches are a few pixels wide and a third of their pixels were missed
             at 1 (docs/orchard_segmenter.md, "Side branches"), while the rotations that find
             them need them whole.
+        nearer_negative_weight: Weight of the nearer negatives in the cross-entropy (pixels
+            of other objects in front of the tree: ``OrchardAugmentConfig.
+            nearer_negative_flow_ratio`` marks them; 1: as every pixel).
         checkpoint_every: Steps between checkpoints.
         validate_every: Steps between validation IoU measurements.
         threshold: Branch probability threshold of the shipped segmenter.
@@ -290,6 +315,7 @@ class TrainConfig:
     warmup_fraction: float = 0.05
     dice_weight: float = 1.0
     side_branch_weight: float = 1.0
+    nearer_negative_weight: float = 1.0
     checkpoint_every: int = 100
     validate_every: int = 500
     threshold: float = 0.5
@@ -301,10 +327,10 @@ class TrainConfig:
                 "TrainConfig.encoder_learning_rate_scale must be in [0, 1], got "
                 f"{self.encoder_learning_rate_scale!r}"
             )
-        if not self.side_branch_weight > 0.0:
-            raise ValueError(
-                f"TrainConfig.side_branch_weight must be > 0, got {self.side_branch_weight!r}"
-            )
+        for name in ("side_branch_weight", "nearer_negative_weight"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0.0):
+                raise ValueError(f"TrainConfig.{name} must be finite and > 0, got {value!r}")
 
     def to_dict(self) -> dict:
         """Plain JSON-able values."""

@@ -32,6 +32,9 @@ from recon.segmentation.segmenter import LearnedSegmenter
 
 logger = logging.getLogger(__name__)
 
+# "In front of the tree" (our choice): past the tree's own depth spread, trunks 1-4 cm thick.
+IN_FRONT_M = 0.03
+
 
 @dataclass(frozen=True)
 class EvaluateConfig:
@@ -59,10 +62,12 @@ class EvaluateConfig:
 
 
 def render_eval_frames(preset: str, seed: int, config: EvaluateConfig):
-    """Yield (previous_rgb, rgb, labels, details_label) along a straight-up scan of tree ``seed``.
+    """Yield (previous_rgb, rgb, labels, details_label, depth_m) along a straight-up scan of
+    tree ``seed``.
 
     ``details_label`` is the label of the tree's spurs, stubs and buds
-    (:func:`branch_gym.sim.scene.labels.details_label`).
+    (:func:`branch_gym.sim.scene.labels.details_label`); ``depth_m`` the (H, W) z-depth of
+    the frame (inf for the sky).
     """
     world = World(WorldConfig.preset(config.world, preset_tree_config(preset)))
     try:
@@ -79,7 +84,7 @@ def render_eval_frames(preset: str, seed: int, config: EvaluateConfig):
             if not world.apply_camera_twist(up, config.previous_offset_m / config.speed_mps).ok:
                 return
             current = world.render()
-            yield previous.rgb, current.rgb, current.labels, details
+            yield previous.rgb, current.rgb, current.labels, details, current.depth_m
             gap = config.frame_spacing_m - config.previous_offset_m
             if not world.apply_camera_twist(up, gap / config.speed_mps).ok:
                 return
@@ -119,14 +124,16 @@ def evaluate_segmenters(
     n_parts = len(PART_NAMES)
     wrong_parts = {name: np.zeros(n_parts, np.int64) for name in variants}
     missed_parts = {name: np.zeros(n_parts, np.int64) for name in variants}
+    wrong_in_front = dict.fromkeys(variants, 0)
     times: dict[str, list[float]] = {name: [] for name in variants}
     seeds = range(EVAL_SEED_OFFSET, EVAL_SEED_OFFSET + config.trees)
     for seed in tqdm(seeds, desc=f"eval {preset}", unit="tree", disable=not progress):
-        for previous, rgb, labels, details in render_eval_frames(preset, seed, config):
+        for previous, rgb, labels, details, depth_m in render_eval_frames(preset, seed, config):
             truth = branch_mask(labels)
             side = truth & (labels >= FIRST_SECONDARY_LABEL)
             scored = labels != details
             parts = label_parts(labels, details - FIRST_SECONDARY_LABEL)
+            in_front = _in_front(depth_m, truth)
             for name, (segmenter, use_previous) in variants.items():
                 t0 = time.perf_counter()
                 mask = segmenter.segment(rgb, previous if use_previous else None)
@@ -138,6 +145,7 @@ def evaluate_segmenters(
                 per_frame[name].append(mask_iou(mask, truth))
                 wrong_parts[name] += np.bincount(parts[mask & ~truth], minlength=n_parts)
                 missed_parts[name] += np.bincount(parts[truth & ~mask], minlength=n_parts)
+                wrong_in_front[name] += int(np.count_nonzero(mask & ~truth & in_front))
                 side_counts[name][0] += int(np.count_nonzero(mask & side))
                 side_counts[name][1] += int(np.count_nonzero(side))
                 scored_side_counts[name][0] += int(np.count_nonzero(mask & side & scored))
@@ -153,11 +161,19 @@ def evaluate_segmenters(
             / max(scored_side_counts[name][1], 1),
             "false_positive_parts": _shares(wrong_parts[name]),
             "missed_parts": _shares(missed_parts[name]),
+            "false_positive_in_front": wrong_in_front[name] / max(int(wrong_parts[name].sum()), 1),
             "frames": len(per_frame[name]),
             "segment_ms_mean": 1000 * float(np.mean(times[name])),
         }
         for name in variants
     }
+
+
+def _in_front(depth_m: np.ndarray, tree: np.ndarray) -> np.ndarray:
+    """(H, W) bool: nearer than the tree's median depth by ``IN_FRONT_M`` (none without tree)."""
+    if not tree.any():
+        return np.zeros_like(tree)
+    return depth_m < float(np.median(depth_m[tree])) - IN_FRONT_M
 
 
 def _shares(counts: np.ndarray) -> dict[str, float]:

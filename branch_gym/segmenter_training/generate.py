@@ -36,6 +36,9 @@ CLASS_BACKGROUND = 0
 CLASS_PRIMARY = 1
 CLASS_SECONDARY = 2
 CLASS_CLUTTER = 3  # renderer's background trees, wires (labels >= 100): not the scanned tree
+# A training target's value for a pixel of another object in front of the scanned tree: not the
+# tree, weighed apart in the loss (OrchardAugmentConfig.nearer_negative_flow_ratio).
+TARGET_NEARER_NEGATIVE = 3
 PRESETS = ("paper", "cluttered", "hard")
 EVAL_PRESETS = (*PRESETS, "tall_spindle", "ufo")  # TreeConfig class methods
 _FIRST_CLUTTER_LABEL = 100  # renderer convention: 100 + k is clutter object k

@@ -33,8 +33,12 @@ import torch
 
 from branch_gym.segmenter_training.augment import camera_effects, smooth_noise
 from branch_gym.segmenter_training.config import FlowAugmentConfig, OrchardAugmentConfig
-from branch_gym.segmenter_training.generate import branch_target, labels_to_classes
-from branch_gym.sim.scene.labels import SKY_LABEL, details_label
+from branch_gym.segmenter_training.generate import (
+    TARGET_NEARER_NEGATIVE,
+    branch_target,
+    labels_to_classes,
+)
+from branch_gym.sim.scene.labels import SKY_LABEL, details_label, is_occluding_clutter
 from recon.segmentation.flow import DenseFlowConfig, compute_flow
 from recon.segmentation.flow import flow_to_picture_fast as flow_to_picture
 from recon.segmentation.inputs import make_picture_input
@@ -221,6 +225,37 @@ def overcast_backlight(
     return out
 
 
+def mark_nearer_negatives(
+    target: np.ndarray, labels: np.ndarray, exact_flow: np.ndarray, flow_ratio: float
+) -> np.ndarray:
+    """The target with the other objects in front of the scanned tree marked apart.
+
+    Args:
+        target: (H, W) uint8 :func:`~branch_gym.segmenter_training.generate.branch_target`.
+        labels: (H, W) instance labels of the frame.
+        exact_flow: (H, W, 2) the renderer's flow of the frame (pixels).
+        flow_ratio: A pixel of another object (posts, wires, the row's trees: labels that
+            :func:`~branch_gym.sim.scene.labels.is_occluding_clutter` names) is nearer when its
+            flow exceeds the tree's median flow by this factor.
+
+    Returns:
+        (H, W) uint8 target, :data:`~branch_gym.segmenter_training.generate.
+        TARGET_NEARER_NEGATIVE` where nearer; unchanged when the frame shows no tree or the
+        tree does not move.
+    """
+    tree = target > 0
+    if not tree.any():
+        return target
+    speed = np.hypot(exact_flow[..., 0], exact_flow[..., 1])
+    tree_speed = float(np.median(speed[tree]))
+    if tree_speed <= 0.0:
+        return target
+    nearer = is_occluding_clutter(labels) & (speed > flow_ratio * tree_speed)
+    marked = target.copy()
+    marked[nearer] = TARGET_NEARER_NEGATIVE
+    return marked
+
+
 def _turn(flow: np.ndarray, rng: np.random.Generator, config: FlowAugmentConfig) -> np.ndarray:
     """Flow vectors turned by a random angle, mirrored first with ``mirror_probability``."""
     u, v = flow[..., 0], flow[..., 1]
@@ -264,6 +299,10 @@ def training_frame(
             raise ValueError("details_as_background needs the pair's details_label")
         classes[labels == details_label] = 0
     target = classes > 0
+    if config.nearer_negative_flow_ratio is not None:
+        classes = mark_nearer_negatives(
+            classes, labels, exact_flow, config.nearer_negative_flow_ratio
+        )
     if rng.random() < config.distractor_probability:
         rgb_pair, exact_flow = add_far_copy(rgb_pair, exact_flow, target, rng)
     if rng.random() < config.overcast_probability:

@@ -29,6 +29,7 @@ from branch_gym.segmenter_training.augment import augment_pair
 from branch_gym.segmenter_training.config import TrainConfig
 from branch_gym.segmenter_training.generate import (
     CLASS_SECONDARY,
+    TARGET_NEARER_NEGATIVE,
     branch_mask,
     branch_target,
     load_shards,
@@ -107,23 +108,28 @@ def segmentation_loss(
     target: torch.Tensor,
     dice_weight: float,
     side_branch_weight: float = 1.0,
+    nearer_negative_weight: float = 1.0,
 ) -> torch.Tensor:
     """Binary cross-entropy plus ``dice_weight`` times the soft-Dice loss of the batch.
 
     Args:
         logits: (B, 1, H, W) branch logits.
         target: (B, 1, H, W) float :func:`branch_target`: 0 background, 1 primary, 2 side
-            branch (a {0, 1} mask works too: all its branch pixels weigh 1).
+            branch, :data:`TARGET_NEARER_NEGATIVE` (3) background in front of the tree (a
+            {0, 1} mask works too: all its branch pixels weigh 1).
         dice_weight: Weight of the Dice term.
         side_branch_weight: Weight of side-branch pixels in the cross-entropy.
+        nearer_negative_weight: Weight of the nearer negatives in the cross-entropy.
 
     Returns:
         Scalar loss tensor.
     """
     weight = None
-    if side_branch_weight != 1.0:
-        weight = torch.where(target == CLASS_SECONDARY, side_branch_weight, 1.0)
-    target = (target > 0).to(logits.dtype)
+    if side_branch_weight != 1.0 or nearer_negative_weight != 1.0:
+        weight = torch.ones_like(target)
+        weight[target == CLASS_SECONDARY] = side_branch_weight
+        weight[target == TARGET_NEARER_NEGATIVE] = nearer_negative_weight
+    target = ((target > 0) & (target != TARGET_NEARER_NEGATIVE)).to(logits.dtype)
     bce = functional.binary_cross_entropy_with_logits(logits, target, weight=weight)
     prob = torch.sigmoid(logits)
     dims = (1, 2, 3)
@@ -350,7 +356,10 @@ def train(
     for x, y in loader:
         for group in optimiser.param_groups:
             group["lr"] = config.learning_rate * group["lr_scale"] * _lr_factor(step, config)
-        loss = segmentation_loss(model(x), y, config.dice_weight, config.side_branch_weight)
+        loss = segmentation_loss(
+            model(x), y, config.dice_weight, config.side_branch_weight,
+            config.nearer_negative_weight,
+        )  # fmt: skip
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
         optimiser.step()
