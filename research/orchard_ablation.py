@@ -11,6 +11,9 @@ Variants (each the orchard world of ``WorldConfig.preset("orchard")`` with the p
 * ``no_wires``: no trellis wire (nor clip);
 * ``no_row``: neither, and no neighbour trees at all (sky, ground, rows behind, posts remain).
 
+Each part is drawn as in the full orchard and then left out, so a variant's scenes are the full
+orchard's scenes, tree for tree, without that part.
+
 The policies are no rotation and the paper's 22.5 deg / 1.5; trials resume like ``eval.py``'s.
 The architectures need no script: ``eval.py --world orchard --tree tall_spindle`` (or ``ufo``).
 """
@@ -32,32 +35,30 @@ from branch_gym.sim.world import WorldConfig
 from recon.config import add_modeler_argument, modeler_overrides
 
 POLICIES = ("none", "periodic:22.5:1.5")
+# The parts each variant leaves out (OrchardRowConfig.left_out).
+VARIANTS = {
+    "no_crossing": ("crossing",),
+    "no_wires": ("wires",),
+    "no_row": ("neighbours", "crossing", "wires"),
+}
 
 
 def variant_world(name: str) -> WorldConfig:
-    """The orchard world without the part ``name`` names (module docstring)."""
+    """The orchard world without the part ``name`` names (module docstring).
+
+    The parts are drawn as in the full orchard and then left out (``OrchardRowConfig.
+    left_out``), so that each variant's scene is the full one's, one part apart.
+    """
     world = WorldConfig.preset("orchard")
-    row = world.orchard.row
-    if name == "no_crossing":
-        row = dataclasses.replace(row, crossing_branch_count_range=(0, 0))
-    elif name == "no_wires":
-        row = dataclasses.replace(row, wire_count_range=(0, 0))
-    elif name == "no_row":
-        row = dataclasses.replace(
-            row,
-            crossing_branch_count_range=(0, 0),
-            wire_count_range=(0, 0),
-            neighbours_per_side=0,
-            uprights_per_side=0,
-        )
-    else:
-        raise ValueError(f"unknown variant {name!r}: no_crossing, no_wires or no_row")
+    if name not in VARIANTS:
+        raise ValueError(f"unknown variant {name!r}: {', '.join(VARIANTS)}")
+    row = dataclasses.replace(world.orchard.row, left_out=VARIANTS[name])
     return dataclasses.replace(world, orchard=dataclasses.replace(world.orchard, row=row))
 
 
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n", 1)[0])
-    parser.add_argument("--variant", required=True, choices=("no_crossing", "no_wires", "no_row"))
+    parser.add_argument("--variant", required=True, choices=tuple(VARIANTS))
     parser.add_argument("--trees", type=int, default=60)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1)

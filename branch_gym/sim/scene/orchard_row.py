@@ -29,6 +29,7 @@ from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 from branch_gym.sim.validation import require_positive
 
 __all__ = [
+    "ROW_PARTS",
     "BackRow",
     "OrchardRow",
     "OrchardRowConfig",
@@ -42,6 +43,8 @@ __all__ = [
 _CULL_ROTATIONS = 25  # orbit poses tested per side (5 deg apart at 60 deg)
 _WIRE_POINTS = 49  # 0.5 m steps over 24 m: the sag between posts is smooth at that spacing
 _SIGNED_RANGES = ("wire_offset_y_range_m",)  # ranges that may hold negative values
+# Parts of the row an ablation can leave out (OrchardRowConfig.left_out).
+ROW_PARTS = ("neighbours", "crossing", "wires")
 
 
 @dataclass(frozen=True)
@@ -98,6 +101,11 @@ class OrchardRowConfig:
         post_clearance_m: No post closer than this to the scanned tree along the row (the robot
             scans it from 0.2 m).
         clip_length_range_m: Length of a clip where the scan-band wire meets the scanned tree.
+        left_out: Parts of :data:`ROW_PARTS` drawn as usual and then left out of the scene
+            ("neighbours": the neighbour trees, not a UFO tree's own uprights; "crossing": the
+            branches reaching across the scanned tree; "wires": wires and clips). Every other
+            draw, the scene's after the row's included, stays that of the full orchard: an
+            ablation compares the same scenes, one part apart.
     """
 
     neighbour_spacing_range_m: tuple[float, float] = (0.6, 1.2)
@@ -134,8 +142,14 @@ class OrchardRowConfig:
     post_height_range_m: tuple[float, float] = (2.5, 3.2)
     post_clearance_m: float = 0.4
     clip_length_range_m: tuple[float, float] = (0.01, 0.025)
+    left_out: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
+        parts = self.left_out
+        if not isinstance(parts, tuple) or not all(part in ROW_PARTS for part in parts):
+            raise ValueError(
+                f"OrchardRowConfig.left_out must name parts of {ROW_PARTS}, got {self.left_out!r}"
+            )
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name.endswith("_range") or "_range_" in f.name:
@@ -514,12 +528,15 @@ def generate_row(
         cordon_radius = 1.6 * float(primary.radii[0])
         row.cordon = BranchGT(np.linspace(path[0], path[1], 9), np.full(9, cordon_radius))
         # The next trees along the row (UFO rows: ~2-3 m of cordon per tree) stay out of view.
+    if "neighbours" in config.left_out:
+        row.trees = [tree for tree in row.trees if tree.same_tree]
     low, high = config.crossing_branch_count_range
     for _ in range(int(rng.integers(low, high + 1))):
         nearest = min((x for x in neighbour_x), key=lambda x: abs(x) + rng.uniform(0, 0.3),
                       default=0.8)  # fmt: skip
         tree = RowTree(_crossing_branch(config, rng, nearest, scanned, band_m))
-        row.trees.append(tree)
+        if "crossing" not in config.left_out:
+            row.trees.append(tree)
     # Posts, then wires hung on them.
     post_spacing = rng.uniform(*config.post_spacing_range_m)
     first = rng.uniform(0.0, post_spacing)
@@ -547,6 +564,8 @@ def generate_row(
                 clip = np.array([[axis[0] - length / 2, y, height], [axis[0] + length / 2, y,
                                  height]])  # fmt: skip
                 row.clips.append(BranchGT(clip, np.full(2, 2.5 * float(wire.radii[0]))))
+    if "wires" in config.left_out:
+        row.wires, row.clips = [], []
     # Rows behind: which prebuilt strip of trees, where along it, which way round.
     distance = rng.uniform(*config.back_row_distance_range_m)
     for extra in (0.0, rng.uniform(*config.far_row_extra_range_m)):
