@@ -15,6 +15,7 @@ Each part is drawn as in the full orchard and then left out, so a variant's scen
 orchard's scenes, tree for tree, without that part.
 
 The policies are no rotation and the paper's 22.5 deg / 1.5; trials resume like ``eval.py``'s.
+``--segmenter learned`` takes the masks from pixels (the renderer's labels by default).
 The architectures need no script: ``eval.py --world orchard --tree tall_spindle`` (or ``ufo``).
 """
 
@@ -63,12 +64,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path, required=True)
+    parser.add_argument(
+        "--segmenter", default="gt", help="masks: gt (the renderer's labels) or learned[:PATH]"
+    )
     add_modeler_argument(
         parser, "over the defaults, e.g. primary_max_turn_deg=null primary_model_vouches=false"
     )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    scan = ScanConfig(world=variant_world(args.variant))
+    scan = ScanConfig(world=variant_world(args.variant), segmenter=args.segmenter)
     if args.modeler:
         scan = scan.replace(
             modeler=dataclasses.replace(scan.modeler, **modeler_overrides(args.modeler))
