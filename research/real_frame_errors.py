@@ -18,10 +18,14 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from branch_gym.segmenter_training.real_frames import RealFrame, load_real_frames, predict_mask
+from branch_gym.segmenter_training.real_frames import (
+    RealFrame,
+    distance_to_mask,
+    load_real_frames,
+    predict_mask,
+)
 from recon.segmentation import load_segmenter
 
 NEAR_PX = 2.0  # "drawn wider": within this of the hand masks (our choice: a trunk's edge blur)
@@ -58,14 +62,9 @@ class Counts:
         return self.hit / (self.hit + self.wrong - drop_wrong + self.missed)
 
 
-def _distance_to(mask: np.ndarray) -> np.ndarray:
-    """(H, W) float32 distance (px) of each pixel to the nearest pixel of ``mask``."""
-    return cv2.distanceTransform((~mask).view(np.uint8), cv2.DIST_L2, 5)
-
-
 def count_errors(predicted: np.ndarray, target: np.ndarray) -> Counts:
     """The pixel counts of one frame (module docstring)."""
-    to_target, to_predicted = _distance_to(target), _distance_to(predicted)
+    to_target, to_predicted = distance_to_mask(target), distance_to_mask(predicted)
     wrong, missed = predicted & ~target, target & ~predicted
     far = wrong & (to_target > MIDDLE_PX)
     bottom = np.zeros_like(far)

@@ -73,6 +73,7 @@ __all__ = [
     "RealFrame",
     "RealFrameScore",
     "RealScoreConfig",
+    "distance_to_mask",
     "draw_score_figure",
     "format_scores",
     "load_real_frames",
@@ -551,10 +552,10 @@ def _dilate(mask: np.ndarray, radius_px: float) -> np.ndarray:
     """(H, W) bool: pixels within ``radius_px`` (Euclidean, centre to centre) of ``mask``."""
     if radius_px <= 0.0 or not mask.any():
         return mask
-    return _distance_to(mask) <= radius_px
+    return distance_to_mask(mask) <= radius_px
 
 
-def _distance_to(mask: np.ndarray) -> np.ndarray:
+def distance_to_mask(mask: np.ndarray) -> np.ndarray:
     """(H, W) float32 distance of every pixel to the nearest ``mask`` pixel (0 on it)."""
     return cv2.distanceTransform((~mask).astype(np.uint8), cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
