@@ -256,6 +256,28 @@ def test_summary_values_and_shape_on_hand_made_trials() -> None:
     json.dumps(summary, allow_nan=False)
 
 
+def test_intervals_do_not_depend_on_the_other_policies_of_the_run() -> None:
+    """A policy's interval and a pair's comparison are the same whatever else the run holds."""
+    missed = {"none": [2, 0, 3, 1, 0, 2, 1, 3], "periodic:22.5:1.5": [0, 1, 1, 0, 0, 2, 0, 1],
+              "privileged": [0, 0, 1, 0, 1, 0, 0, 0]}  # fmt: skip
+    records = [
+        _record(policy, seed, _metrics([1.0], [], (4, 4 - count, 0, 0)), 20.0 + seed + count)
+        for policy, counts in missed.items()
+        for seed, count in enumerate(counts)
+    ]
+    alone = build_summary(EvalConfig(("none", "periodic:22.5:1.5"), trees=8), records)
+    more = build_summary(EvalConfig(("privileged", "none", "periodic:22.5:1.5"), trees=8), records)
+    for policy in ("none", "periodic:22.5:1.5"):
+        for key in ("missed_pct_ci", "scan_time_s_ci"):
+            assert alone["policies"][policy][key] == more["policies"][policy][key]
+    pair = [
+        p for p in more["paired"] if (p["policy"], p["against"]) == ("periodic:22.5:1.5", "none")
+    ]
+    assert pair == alone["paired"]
+    low, high = alone["policies"]["none"]["missed_pct_ci"]
+    assert low < alone["policies"]["none"]["missed_pct"] < high  # a real, non-degenerate interval
+
+
 def test_table_layout_and_formatting() -> None:
     summary = build_summary(EvalConfig(POLICIES, trees=2), _records())
     lines = format_table(summary).splitlines()

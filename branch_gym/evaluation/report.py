@@ -145,18 +145,24 @@ def build_summary(config: EvalConfig, records: Sequence[TrialRecord]) -> dict:
     """``summary.json``: one entry per policy, keyed by its spec as given, the paired
     comparisons of every two policies, and the run config.
 
-    The bootstrap draws from a generator seeded by the first tree seed (``config.seed``).
+    Each policy's bootstrap and each pair's starts a fresh generator seeded by the first tree
+    seed (``config.seed``): every interval resamples the same trees, and none depends on which
+    other policies share the run or on their order.
     """
     by_policy = {policy: [r for r in records if r.policy == policy] for policy in config.policies}
     empty = [policy for policy, rs in by_policy.items() if not rs]
     if empty:
         raise ValueError(f"no trials for policies {empty}")
-    rng = np.random.default_rng(config.seed)
     policies = {}
     for policy, rs in by_policy.items():
+        rng = np.random.default_rng(config.seed)
         policies[policy] = {**summarise_policy(rs), **bootstrap_ci(rs, rng)}
     paired = [
-        {"policy": a, "against": b, **paired_comparison(by_policy[a], by_policy[b], rng)}
+        {
+            "policy": a,
+            "against": b,
+            **paired_comparison(by_policy[a], by_policy[b], np.random.default_rng(config.seed)),
+        }
         for i, a in enumerate(config.policies)
         for b in config.policies[:i]
     ]
