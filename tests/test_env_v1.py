@@ -49,6 +49,10 @@ def test_the_price_sets_the_time_term_and_is_drawn_per_episode() -> None:
         assert info["reward_terms"]["time"] == pytest.approx(-elapsed / 50.0)
         prices = {float(env.reset(seed=s)[0][PRICE_KEY][0]) for s in range(5)}
         assert len(prices) == 5 and all(0.0 <= p <= 1.0 for p in prices)
+        low, high = env.unwrapped.config.branch_value_s
+        for outside in (0.5 * low, 2.0 * high):  # would read as the range's end: refused
+            with pytest.raises(ValueError, match=r"branch_value_s.*range"):
+                env.reset(seed=1, options={"branch_value_s": outside})
     finally:
         env.close()
     v0 = gymnasium.make(branch_gym.ENV_ID, **SHORT)

@@ -198,7 +198,7 @@ class BranchScanEnv(gym.Env):
     ``action_type``          "continuous", "discrete", "discrete_hold" or "trigger" (set by id)
     ``coverage``             a ``CoverageConfig``: the v1 / v2 coverage memory (None in v0)
     ``branch_value_s``       (low, high) s: the per-episode price of scan time (None in v0);
-                             ``reset(options={"branch_value_s": v})`` fixes it
+                             ``reset(options={"branch_value_s": v})`` fixes it (v in range)
     ``theta_max_deg``        continuous action bound and angle normaliser (45)
     ``discrete_angles_deg``  discrete target angles ((-45, -22.5, 0, 22.5, 45))
     ``trigger_angles_deg``   cycle angles of the trigger actions ((22.5, 45))
@@ -426,6 +426,12 @@ class BranchScanEnv(gym.Env):
                 raise ValueError("reset option 'branch_value_s' needs an env with branch_value_s")
             return None
         low, high = self.config.branch_value_s
+        if fixed_s is not None and not low <= fixed_s <= high:
+            raise ValueError(
+                f"reset option 'branch_value_s' must lie in this env's branch_value_s range "
+                f"[{low:g}, {high:g}] s, got {fixed_s:g}: the observation's price would read "
+                "the range's end"
+            )
         value = fixed_s
         if value is None:
             value = float(np.exp(self.np_random.uniform(np.log(low), np.log(high))))
