@@ -7,6 +7,11 @@ pixels missed split the same way from the predicted mask; and the IoU with the h
 shifted by the best whole-pixel offset within ``--max-shift-px`` (a registration check of the
 hand masks, never used to score).
 
+A second table takes the hand side-branch masks one by one: their pixels, the share the mask
+covers, how far they lie from the trunk masks, and whether the 2D stage finds them on the
+predicted mask and on the hand masks themselves (``real_frames.side_branches_found``, the
+``score-real`` rule). The 2D stage finds only side branches that leave the primary.
+
     python research/real_frame_errors.py ../shared/data/real_dev [--weights learned] [--no-flow]
 
 Prints a markdown table. The frames are GPL v3: nothing of them is written.
@@ -22,10 +27,13 @@ import numpy as np
 
 from branch_gym.segmenter_training.real_frames import (
     RealFrame,
+    RealScoreConfig,
     distance_to_mask,
     load_real_frames,
     predict_mask,
+    side_branches_found,
 )
+from recon.curve2d.fit import fit_mask_curves
 from recon.segmentation import load_segmenter
 
 NEAR_PX = 2.0  # "drawn wider": within this of the hand masks (our choice: a trunk's edge blur)
@@ -129,6 +137,32 @@ def report(frames: list[RealFrame], segmenter: object, use_flow: bool, max_shift
     return "\n".join(lines)
 
 
+def side_branch_report(frames: list[RealFrame], segmenter: object, use_flow: bool) -> str:
+    """The markdown table of every hand side-branch mask (module docstring)."""
+    config = RealScoreConfig()
+    lines = [
+        "| frame | side branch | pixels | in the mask, % | gap to the trunk masks, px | "
+        "found on the mask | found on the hand masks |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for frame in frames:
+        predicted = predict_mask(segmenter, frame, use_flow)
+        found = side_branches_found(frame, fit_mask_curves(predicted, config.curve2d), config)
+        by_hand = side_branches_found(frame, fit_mask_curves(frame.target, config.curve2d), config)
+        trunks = np.zeros(frame.shape, bool)
+        for mask in frame.trunk_masks:
+            trunks |= mask
+        to_trunk = distance_to_mask(trunks)
+        for k, mask in enumerate(frame.side_branch_masks):
+            covered = 100.0 * np.count_nonzero(predicted & mask) / max(np.count_nonzero(mask), 1)
+            gap = float(to_trunk[mask].min()) if mask.any() else float("nan")
+            lines.append(
+                f"| {frame.name} | {k} | {np.count_nonzero(mask)} | {covered:.0f} | {gap:.0f} | "
+                f"{'yes' if found[k] else 'no'} | {'yes' if by_hand[k] else 'no'} |"
+            )
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", type=Path, help="a real frame folder (score-real's --data)")
@@ -139,6 +173,8 @@ def main() -> None:
     frames = load_real_frames(args.data)
     segmenter = load_segmenter(args.weights)
     print(report(frames, segmenter, not args.no_flow, args.max_shift_px))
+    print()
+    print(side_branch_report(frames, segmenter, not args.no_flow))
 
 
 if __name__ == "__main__":

@@ -82,6 +82,7 @@ __all__ = [
     "score_prediction",
     "score_report",
     "score_segmenter",
+    "side_branches_found",
     "summarise",
 ]
 
@@ -391,8 +392,7 @@ def score_prediction(
             _fraction_inside(points, _dilate(m, config.tolerance_px)) for m in frame.trunk_masks
         )
     on_trunk = bool(trunk_fraction >= config.min_on_trunk_fraction)  # False for NaN
-    side_points = [_curve_points(c, config) for c in curves.secondaries]
-    found = sum(_side_branch_found(m, side_points, config) for m in frame.side_branch_masks)
+    found = sum(side_branches_found(frame, curves, config))
     return RealFrameScore(
         name=frame.name,
         iou=pooled_iou(intersection, union),
@@ -406,6 +406,24 @@ def score_prediction(
         predicted=predicted,
         curves=curves,
     )
+
+
+def side_branches_found(
+    frame: RealFrame, curves: MaskCurves, config: RealScoreConfig | None = None
+) -> list[bool]:
+    """Which of the frame's hand side-branch masks the 2D stage's side-branch curves find.
+
+    Args:
+        frame: The frame with its hand masks.
+        curves: The 2D stage's output on a mask of the frame (``fit_mask_curves``).
+        config: Matching thresholds (module docstring).
+
+    Returns:
+        One flag per ``frame.side_branch_masks``, in order.
+    """
+    config = config or RealScoreConfig()
+    side_points = [_curve_points(c, config) for c in curves.secondaries]
+    return [_side_branch_found(m, side_points, config) for m in frame.side_branch_masks]
 
 
 def score_hand_masks(
