@@ -57,7 +57,11 @@ OBSERVATION_FEATURES = {
         "`(128,) float32`: the view-coverage memory, 16 height bins x 8 channels (seen from each "
         "rotation sector, unconfirmed candidates, model secondaries, disagreements)",
     ),
-    "price": ("price", "`(1,) float32`: the episode's value of a found branch, 25-400 s"),
+    "price": (
+        "price",
+        "`(1,) float32`: the episode's value of a found branch, 25-400 s (drawn per episode, or "
+        '`reset(options={"branch_value_s": v})` within that range)',
+    ),
     "in_front": (
         "IN_FRONT",
         "a ninth coverage channel (`coverage` is `(144,)`): the tracked primary points that "
