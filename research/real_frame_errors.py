@@ -14,7 +14,7 @@ predicted mask and on the hand masks themselves (``real_frames.side_branches_fou
 
     python research/real_frame_errors.py ../shared/data/real_dev [--weights learned] [--no-flow]
 
-Prints a markdown table. The frames are GPL v3: nothing of them is written.
+Prints two markdown tables. The frames are GPL v3: nothing of them is written.
 """
 
 from __future__ import annotations
