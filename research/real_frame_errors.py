@@ -31,9 +31,9 @@ from branch_gym.segmenter_training.real_frames import (
     distance_to_mask,
     load_real_frames,
     predict_mask,
+    score_prediction,
     side_branches_found,
 )
-from recon.curve2d.fit import fit_mask_curves
 from recon.segmentation import load_segmenter
 
 NEAR_PX = 2.0  # "drawn wider": within this of the hand masks (our choice: a trunk's edge blur)
@@ -118,7 +118,7 @@ def _row(name: str, counts: Counts, shift: str) -> str:
     )
 
 
-def report(frames: list[RealFrame], segmenter: object, use_flow: bool, max_shift_px: int) -> str:
+def report(frames: list[RealFrame], predicted: list[np.ndarray], max_shift_px: int) -> str:
     """The markdown table of every frame and the pooled row."""
     lines = [
         "| frame | IoU | precision | recall | wrong pixels within 2 px / 2-4 px / farther, % | "
@@ -127,17 +127,16 @@ def report(frames: list[RealFrame], segmenter: object, use_flow: bool, max_shift
         "|---|---|---|---|---|---|---|---|---|",
     ]
     total = Counts()
-    for frame in frames:
-        predicted = predict_mask(segmenter, frame, use_flow)
-        counts = count_errors(predicted, frame.target)
+    for frame, mask in zip(frames, predicted, strict=True):
+        counts = count_errors(mask, frame.target)
         total += counts
-        shift, shifted_iou = best_shift(predicted, frame.target, max_shift_px)
+        shift, shifted_iou = best_shift(mask, frame.target, max_shift_px)
         lines.append(_row(frame.name, counts, f"{shift}: {shifted_iou:.3f}"))
     lines.append(_row("pooled", total, "-"))
     return "\n".join(lines)
 
 
-def side_branch_report(frames: list[RealFrame], segmenter: object, use_flow: bool) -> str:
+def side_branch_report(frames: list[RealFrame], predicted: list[np.ndarray]) -> str:
     """The markdown table of every hand side-branch mask (module docstring)."""
     config = RealScoreConfig()
     lines = [
@@ -145,16 +144,19 @@ def side_branch_report(frames: list[RealFrame], segmenter: object, use_flow: boo
         "found on the mask | found on the hand masks |",
         "|---|---|---|---|---|---|---|",
     ]
-    for frame in frames:
-        predicted = predict_mask(segmenter, frame, use_flow)
-        found = side_branches_found(frame, fit_mask_curves(predicted, config.curve2d), config)
-        by_hand = side_branches_found(frame, fit_mask_curves(frame.target, config.curve2d), config)
+    for frame, predicted_mask in zip(frames, predicted, strict=True):
+        found, by_hand = (
+            side_branches_found(frame, score_prediction(mask, frame, config).curves, config)
+            for mask in (predicted_mask, frame.target)
+        )
         trunks = np.zeros(frame.shape, bool)
         for mask in frame.trunk_masks:
             trunks |= mask
         to_trunk = distance_to_mask(trunks)
         for k, mask in enumerate(frame.side_branch_masks):
-            covered = 100.0 * np.count_nonzero(predicted & mask) / max(np.count_nonzero(mask), 1)
+            covered = (
+                100.0 * np.count_nonzero(predicted_mask & mask) / max(np.count_nonzero(mask), 1)
+            )
             gap = float(to_trunk[mask].min()) if mask.any() else float("nan")
             lines.append(
                 f"| {frame.name} | {k} | {np.count_nonzero(mask)} | {covered:.0f} | {gap:.0f} | "
@@ -172,9 +174,10 @@ def main() -> None:
     args = parser.parse_args()
     frames = load_real_frames(args.data)
     segmenter = load_segmenter(args.weights)
-    print(report(frames, segmenter, not args.no_flow, args.max_shift_px))
+    predicted = [predict_mask(segmenter, frame, not args.no_flow) for frame in frames]
+    print(report(frames, predicted, args.max_shift_px))
     print()
-    print(side_branch_report(frames, segmenter, not args.no_flow))
+    print(side_branch_report(frames, predicted))
 
 
 if __name__ == "__main__":
