@@ -75,6 +75,24 @@ def test_camera_spec_defaults_and_validation() -> None:
         check_pose(np.eye(3))
 
 
+def test_scaled_camera_keeps_the_image_edges() -> None:
+    spec = CameraSpec(cx=161.3, cy=118.2)
+    points = np.array([[0.01, -0.02, 0.3], [-0.05, 0.04, 0.5]])
+    pixels, _ = spec.project(points, np.eye(4))
+    for factor in (2.0, 0.5, 0.25):
+        scaled = spec.scaled(factor)
+        assert (scaled.width, scaled.height) == (320 * factor, 240 * factor)
+        moved, _ = scaled.project(points, np.eye(4))
+        # A pixel edge at u lies at factor * u: centres map as factor * (u + 1/2) - 1/2.
+        np.testing.assert_allclose(moved, factor * (pixels + 0.5) - 0.5, atol=1e-9)
+    assert spec.scaled(2.0).scaled(0.5) == spec
+    assert CameraSpec(width=322, height=243).scaled(0.25).width == 80  # a partial bin dropped
+    with pytest.raises(ValueError, match="factor"):
+        spec.scaled(0.0)
+    with pytest.raises(ValueError, match="empty"):
+        spec.scaled(1e-3)
+
+
 @pytest.mark.parametrize(
     "spec",
     [CameraSpec(), CameraSpec(width=200, height=160, fx=300.0, fy=280.0, cx=93.3, cy=88.7)],

@@ -83,6 +83,36 @@ class CameraSpec:
         focal = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
         return cls(width, height, focal, focal, width / 2.0, height / 2.0, near_m, far_m)
 
+    def scaled(self, factor: float) -> CameraSpec:
+        """The same camera at ``factor`` x the resolution, the image's top-left edge kept.
+
+        A pixel edge at u of this camera lies at ``factor * u`` of the result, so a principal
+        point moves to ``factor * (c + 1/2) - 1/2``: with ``factor = 1 / s`` pixel i covers this
+        camera's pixels ``s i .. s i + s - 1`` (binning; a last partial bin is dropped: the size
+        is floored to whole pixels), with ``factor = k`` each pixel splits into k x k (a sensor
+        of k times the resolution).
+
+        Raises:
+            ValueError: ``factor`` not positive, or no whole pixel left.
+        """
+        if not (math.isfinite(factor) and factor > 0):
+            raise ValueError(f"CameraSpec.scaled: factor must be positive, got {factor!r}")
+        width, height = (math.floor(side * factor + 1e-9) for side in (self.width, self.height))
+        if width < 1 or height < 1:
+            raise ValueError(
+                f"CameraSpec.scaled: {self.width}x{self.height} times {factor} is empty"
+            )
+        return CameraSpec(
+            width=width,
+            height=height,
+            fx=self.fx * factor,
+            fy=self.fy * factor,
+            cx=factor * (self.cx + 0.5) - 0.5,
+            cy=factor * (self.cy + 0.5) - 0.5,
+            near_m=self.near_m,
+            far_m=self.far_m,
+        )
+
     @property
     def K(self) -> np.ndarray:
         """(3, 3) calibration matrix."""

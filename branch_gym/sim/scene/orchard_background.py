@@ -13,7 +13,6 @@ depth and instance label:
 from __future__ import annotations
 
 import functools
-from dataclasses import replace
 
 import cv2
 import numpy as np
@@ -59,18 +58,8 @@ def srgb_to_linear(image: np.ndarray) -> np.ndarray:
 
 @functools.lru_cache(maxsize=8)
 def _scaled_spec(spec: CameraSpec, scale: int) -> CameraSpec:
-    """The camera at 1/scale resolution: pixel i covers full pixels scale i .. scale i + scale - 1
-    (centre ``scale i + (scale - 1) / 2``), so fx / scale and (cx - (scale - 1) / 2) / scale."""
-    offset = 0.5 * (scale - 1)
-    return replace(
-        spec,
-        width=spec.width // scale,
-        height=spec.height // scale,
-        fx=spec.fx / scale,
-        fy=spec.fy / scale,
-        cx=(spec.cx - offset) / scale,
-        cy=(spec.cy - offset) / scale,
-    )
+    """The camera at 1/scale resolution (:meth:`CameraSpec.scaled`), kept: asked every frame."""
+    return spec.scaled(1.0 / scale)
 
 
 class OrchardBackground:
