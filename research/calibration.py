@@ -14,8 +14,10 @@ every rotation ``k``; ``s < 0`` rotates more readily, ``s > 0`` less.
 :func:`shift_hold_logit` writes such a copy of a model (the bias of ``policy.action_net``, the
 same place ``train.py --first-action-logit`` sets it); the file is an ordinary SB3 model that
 ``eval.py --policies ppo:PATH`` plays. The shift is recorded beside it in ``PATH.calibration.json``
-with the source model. Pick shifts on validation trees (never the benchmark trees), e.g. with
-``python -m research.selection``.
+with the source model. ``--return-too`` shifts the turn back to 0 degrees with "hold": a student
+that returns to the home view once nothing is pending then leaves it less readily but comes back
+as readily (a hold shift alone would keep it turned, hiding what the home view shows). Pick
+shifts on validation trees (never the benchmark trees), e.g. with ``python -m research.selection``.
 
 Usage::
 
@@ -29,8 +31,11 @@ import argparse
 import math
 import sys
 from pathlib import Path
+from typing import Any
 
-from agents.ppo import load_model, resolve_model_path
+from agents.ppo import load_model, model_env_id, resolve_model_path
+from branch_gym.env.layout import DISCRETE_ANGLES_DEG
+from branch_gym.env.versions import env_version
 from branch_gym.files import write_json_atomic
 from branch_gym.training.train import apply_first_action_logit
 
@@ -43,13 +48,19 @@ def calibration_path(model_path: str | Path) -> Path:
     return model_path.with_name(model_path.stem + CALIBRATION_SUFFIX)
 
 
-def shift_hold_logit(source: str | Path, shift: float, out: str | Path) -> Path:
+def shift_hold_logit(
+    source: str | Path, shift: float, out: str | Path, return_too: bool = False
+) -> Path:
     """Copy a discrete-action model with ``shift`` added to its "hold" (action 0) logit.
 
     Args:
         source: The model file (a discrete-action PPO; e.g. a DAgger student).
         shift: Added to the logit of action 0 (negative: rotate more readily).
         out: The new model file (``.zip``); its provenance goes beside it.
+        return_too: Add it to the logit of the turn back to 0 degrees as well (a
+            ``discrete_hold`` model), so that the shift makes leaving the home view rarer but not
+            coming back to it: a student that turns back once nothing is pending (the
+            ``privileged:home`` expert's habit) would otherwise stay turned.
 
     Returns:
         ``out``.
@@ -70,12 +81,28 @@ def shift_hold_logit(source: str | Path, shift: float, out: str | Path) -> Path:
         raise ValueError(f"{source} has a {type(model.action_space).__name__} action space: "
                          "a hold-logit shift needs a discrete one")  # fmt: skip
     apply_first_action_logit(model, shift)
+    if return_too:
+        _shift_return_logit(model, shift)
     out.parent.mkdir(parents=True, exist_ok=True)
     model.save(out)
-    write_json_atomic(
-        calibration_path(out), {"source_model": str(source), "hold_logit_shift": float(shift)}
-    )
+    provenance = {"source_model": str(source), "hold_logit_shift": float(shift)}
+    if return_too:
+        provenance["return_logit_shift"] = float(shift)
+    write_json_atomic(calibration_path(out), provenance)
     return out
+
+
+def _shift_return_logit(model: Any, shift: float) -> None:
+    """Add ``shift`` to the logit of a ``discrete_hold`` model's turn back to 0 degrees."""
+    import torch
+
+    env_id = model_env_id(model)
+    kwargs = env_version(env_id).env_kwargs() if env_id else {}
+    if kwargs.get("action_type") != "discrete_hold":
+        raise ValueError(f"a return-logit shift needs a discrete_hold model, not {env_id!r}")
+    angles = list(kwargs.get("discrete_angles_deg", DISCRETE_ANGLES_DEG))
+    with torch.no_grad():
+        model.policy.action_net.bias[1 + angles.index(0.0)] += shift
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,9 +110,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("model", type=Path, help="a discrete-action model file (.zip)")
     parser.add_argument("--hold-logit-shift", type=float, required=True)
     parser.add_argument("--out", type=Path, required=True, help="the calibrated model (.zip)")
+    parser.add_argument(
+        "--return-too",
+        action="store_true",
+        help="shift the turn back to 0 degrees as well (only leaving home gets rarer)",
+    )
     args = parser.parse_args(argv)
     try:
-        written = shift_hold_logit(args.model, args.hold_logit_shift, args.out)
+        written = shift_hold_logit(args.model, args.hold_logit_shift, args.out, args.return_too)
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

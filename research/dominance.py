@@ -11,6 +11,9 @@ cheap end (at least ``CHEAP_END_FEWER`` fewer misses than no rotation within ``C
 x its scan time) and the gap to the privileged bound.
 
     python research/dominance.py results/orchard_pixels_v2 results/orchard_pixels_v2_shipped
+
+``--learned SPEC ...`` counts only those learned policies (e.g. the shipped ones) where the folders
+hold others too.
 """
 
 from __future__ import annotations
@@ -101,10 +104,18 @@ def _cell(f: dict[str, float]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("folders", type=Path, nargs="+", help="eval.py --out folders")
+    parser.add_argument(
+        "--learned", nargs="+", help="count only these ppo: policies (default: every one)"
+    )
     args = parser.parse_args()
     records = load_folders(args.folders)
     stats = {policy: figures(trials) for policy, trials in records.items()}
     learned = [p for p in records if p.startswith(PPO_SPEC_PREFIX)]
+    if args.learned:
+        unknown = sorted(set(args.learned) - set(learned))
+        if unknown:
+            raise SystemExit(f"--learned: no trials of {', '.join(unknown)} in the folders")
+        learned = [p for p in learned if p in args.learned]
     fixed = [p for p in records if p.startswith(FIXED_PREFIXES)]
     if not learned or not fixed:
         raise SystemExit("need trials of at least one ppo: policy and one periodic/ftl point")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.ppo import load_model
+from agents.ppo import load_model, resolve_model_path
 from research.calibration import calibration_path, main, shift_hold_logit
 
 
@@ -49,3 +49,22 @@ def test_bad_calibration_requests_fail_clearly(source: Path, tmp_path: Path, cap
     PPO("MlpPolicy", "Pendulum-v1", n_steps=8, batch_size=8, device="cpu").save(continuous)
     with pytest.raises(ValueError, match="discrete"):
         shift_hold_logit(continuous, 1.0, tmp_path / "y.zip")
+
+
+def test_return_too_makes_leaving_home_rarer_but_not_coming_back(tmp_path: Path) -> None:
+    # A shipped discrete_hold student: action 0 holds, k >= 1 turns to DISCRETE_ANGLES_DEG[k - 1].
+    from branch_gym.env.layout import DISCRETE_ANGLES_DEG
+
+    home = 1 + DISCRETE_ANGLES_DEG.index(0.0)
+    before = load_model(resolve_model_path("ppo_dagger_v2")).policy.action_net.bias.detach().numpy()
+    out = shift_hold_logit("ppo_dagger_v2", 2.0, tmp_path / "calm.zip", return_too=True)
+    after = load_model(out).policy.action_net.bias.detach().numpy()
+    shifted = np.zeros_like(before)
+    shifted[[0, home]] = 2.0  # hold and the turn back to 0: leaving is 2 logits less likely
+    np.testing.assert_allclose(after - before, shifted, atol=1e-6)
+    assert json.loads(calibration_path(out).read_text())["return_logit_shift"] == 2.0
+
+
+def test_return_too_needs_a_discrete_hold_model(source: Path, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="discrete_hold"):
+        shift_hold_logit(source, 1.0, tmp_path / "z.zip", return_too=True)

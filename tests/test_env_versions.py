@@ -31,6 +31,7 @@ from branch_gym.env.versions import (
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = {
+    "ppo_ctg_orchard": "BranchScanDiscrete-v2",
     "ppo_dagger": "BranchScanDiscrete-v1",
     "ppo_dagger_priced": "BranchScanDiscrete-v1",
     "ppo_dagger_v2": "BranchScanDiscrete-v2",
@@ -80,7 +81,7 @@ def test_shipped_models_are_found_by_name_and_record_their_env() -> None:
         assert saved_env_id(path) == env_id
         assert (path.parent / f"{name}.md").is_file()  # its card
         assert spec_env_kwargs(f"ppo:{name}@100") == env_version(env_id).env_kwargs()
-    with pytest.raises(FileNotFoundError, match="shipped models: ppo_dagger"):
+    with pytest.raises(FileNotFoundError, match="shipped models: ppo_ctg_orchard, ppo_dagger"):
         resolve_model_path("no_such_model")
 
 

@@ -15,14 +15,18 @@ from branch_gym.training.imitation.data import RoundData
 from branch_gym.training.imitation.fit import action_probabilities
 from branch_gym.training.imitation.labels import LabellingAgent
 
-# Shipped price-conditioned students and the env id they act in.
-PRICED_POLICIES = {"ppo_dagger_priced": "BranchScanDiscrete-v1"}
+# Shipped price-conditioned students: the env id they act in and the world they were trained in.
+PRICED_POLICIES = {
+    "ppo_dagger_priced": ("BranchScanDiscrete-v1", {}),
+    "ppo_ctg_orchard": ("BranchScanDiscrete-v2", {"world": "orchard", "segmenter": "learned"}),
+}
 
 
 @pytest.mark.parametrize("name", sorted(PRICED_POLICIES))
 def test_the_price_input_changes_the_rotation_rate(name):
+    env_id, world = PRICED_POLICIES[name]
     env = gym.make(
-        PRICED_POLICIES[name], tracker="oracle", render_tracking_frames=False, end_height_m=0.6
+        env_id, tracker="oracle", render_tracking_frames=False, end_height_m=0.6, **world
     )
     try:
         recorder = LabellingAgent(PrivilegedAgent.for_env(env))  # the expert's states
