@@ -9,7 +9,7 @@ do the same on renders made the real frames' way: here the orchard world renders
 frames of ``branch_gym.segmenter_training.evaluate`` at ``FACTOR`` x the resolution (the camera
 model, its noise and JPEG included, at that size, as a real sensor), and resizes frame, partner
 frame and tree mask with ``INTER_AREA`` (a mask pixel is tree when half its area is: the rule
-the real hand masks get, ``real_frames.py``).
+the real hand masks get, ``real_frames.resize_mask``).
 
     python research/segmenter_supersampled.py --trees 10 --presets paper ufo   # ~1 min
 
@@ -21,19 +21,18 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Iterator
-from dataclasses import replace
 
 import cv2
 import numpy as np
 
 from branch_gym.segmenter_training.config import EVAL_SEED_OFFSET
-from branch_gym.segmenter_training.evaluate import EvaluateConfig
-from branch_gym.segmenter_training.generate import branch_mask, preset_tree_config
-from branch_gym.sim.world import World, WorldConfig
+from branch_gym.segmenter_training.evaluate import EvaluateConfig, render_eval_frames
+from branch_gym.segmenter_training.generate import branch_mask
+from branch_gym.segmenter_training.real_frames import resize_mask
+from branch_gym.sim.world import WorldConfig
 from recon.segmentation import load_segmenter
 
 FACTOR = 2  # the real frames' 640x480 -> 320x240
-MASK_AREA_THRESHOLD = 0.5  # the real hand masks' resizing rule (real_frames.py)
 
 
 def scan_frames(
@@ -41,28 +40,15 @@ def scan_frames(
 ) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """(previous_rgb, rgb, tree mask) at the camera's resolution along the evaluation's scan,
     rendered at ``factor`` x and resized (factor 1: the renderer's own frames)."""
-    base = WorldConfig.preset(config.world, preset_tree_config(preset))
-    world = World(replace(base, camera=base.camera.scaled(factor)))
-    size = (base.camera.width, base.camera.height)
+    camera = WorldConfig.preset(config.world).camera
+    size = (camera.width, camera.height)
 
     def resized(image: np.ndarray) -> np.ndarray:
         return image if factor == 1 else cv2.resize(image, size, interpolation=cv2.INTER_AREA)
 
-    up = np.array([0.0, -config.speed_mps, 0.0, 0.0, 0.0, 0.0])
-    gap_s = (config.frame_spacing_m - config.previous_offset_m) / config.speed_mps
-    try:
-        world.reset(seed)
-        for _ in range(config.frames_per_tree):
-            previous = world.render()
-            if not world.apply_camera_twist(up, config.previous_offset_m / config.speed_mps).ok:
-                return
-            current = world.render()
-            tree = resized(branch_mask(current.labels).astype(np.float32))
-            yield resized(previous.rgb), resized(current.rgb), tree >= MASK_AREA_THRESHOLD
-            if not world.apply_camera_twist(up, gap_s).ok:
-                return
-    finally:
-        world.close()
+    frames = render_eval_frames(preset, seed, config, camera.scaled(factor))
+    for previous, rgb, labels, _, _ in frames:
+        yield resized(previous), resized(rgb), resize_mask(branch_mask(labels), size)
 
 
 def main() -> None:

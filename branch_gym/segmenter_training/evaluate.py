@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from tqdm import tqdm
@@ -20,6 +20,7 @@ from tqdm import tqdm
 from branch_gym.segmenter_training.config import EVAL_SEED_OFFSET
 from branch_gym.segmenter_training.generate import branch_mask, preset_tree_config
 from branch_gym.segmenter_training.orchard_pairs import orbit_camera
+from branch_gym.sim.scene.camera_spec import CameraSpec
 from branch_gym.sim.scene.labels import (
     FIRST_SECONDARY_LABEL,
     PART_NAMES,
@@ -61,15 +62,21 @@ class EvaluateConfig:
     orbit_deg: float = 0.0
 
 
-def render_eval_frames(preset: str, seed: int, config: EvaluateConfig):
+def render_eval_frames(
+    preset: str, seed: int, config: EvaluateConfig, camera: CameraSpec | None = None
+):
     """Yield (previous_rgb, rgb, labels, details_label, depth_m) along a straight-up scan of
     tree ``seed``.
 
     ``details_label`` is the label of the tree's spurs, stubs and buds
     (:func:`branch_gym.sim.scene.labels.details_label`); ``depth_m`` the (H, W) z-depth of
-    the frame (inf for the sky).
+    the frame (inf for the sky). ``camera`` replaces the world's camera (e.g.
+    ``CameraSpec.scaled``: the same views at another resolution).
     """
-    world = World(WorldConfig.preset(config.world, preset_tree_config(preset)))
+    world_config = WorldConfig.preset(config.world, preset_tree_config(preset))
+    if camera is not None:
+        world_config = replace(world_config, camera=camera)
+    world = World(world_config)
     try:
         world.reset(seed)
         details = details_label(len(world.tree.secondaries))

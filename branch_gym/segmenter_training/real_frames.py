@@ -78,6 +78,7 @@ __all__ = [
     "format_scores",
     "load_real_frames",
     "predict_mask",
+    "resize_mask",
     "score_hand_masks",
     "score_prediction",
     "score_report",
@@ -311,8 +312,8 @@ def _load_frame(path: Path, size: tuple[int, int] | None, swap_flow: bool) -> Re
     if size is not None and (size[1], size[0]) != native:
         rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
         flow = None if flow is None else cv2.resize(flow, size, interpolation=cv2.INTER_AREA)
-        trunks = [_resize_mask(m, size) for m in trunks]
-        sides = [_resize_mask(m, size) for m in sides]
+        trunks = [resize_mask(m, size) for m in trunks]
+        sides = [resize_mask(m, size) for m in sides]
     for kind, masks in (("trunk", trunks), ("sidebranch", sides)):
         for index, mask in enumerate(masks):
             if not mask.any():
@@ -356,8 +357,9 @@ def _check_size(got: tuple[int, ...], want: tuple[int, ...], path: Path, frame: 
         )
 
 
-def _resize_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """(H', W') bool mask resized to ``size`` = (W', H') by area, thresholded."""
+def resize_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(H', W') bool mask resized to ``size`` = (W', H') by area, thresholded
+    (``MASK_AREA_THRESHOLD``): how the real hand masks reach the camera's resolution."""
     area = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA)
     return area >= MASK_AREA_THRESHOLD
 
