@@ -19,6 +19,14 @@ that returns to the home view once nothing is pending then leaves it less readil
 as readily (a hold shift alone would keep it turned, hiding what the home view shows). Pick
 shifts on validation trees (never the benchmark trees), e.g. with ``python -m research.selection``.
 
+The cost of a turn against a branch's value falls with the price of scan time, and so does the
+Bayes threshold: ``--top-price-shift S1`` makes the shift a function of the observed price,
+``s(p) = s0 + (S1 - s0) p`` with ``s0`` the ``--hold-logit-shift`` and ``p`` the env's price
+feature (0 at the lowest price, 1 at the highest, linear in its logarithm:
+``branch_gym.env.layout.price_feature``). One network then answers every price with its own
+threshold: :func:`add_price_slope` widens the policy's MLP by one unit that carries ``p`` to the
+action layer (module notes there), so that the file stays an ordinary SB3 model.
+
 Usage::
 
     python -m research.calibration runs/dagger_v2/model_round_9.zip \\
@@ -33,8 +41,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from agents.ppo import load_model, model_env_id, resolve_model_path
-from branch_gym.env.layout import DISCRETE_ANGLES_DEG
+from branch_gym.env.layout import DISCRETE_ANGLES_DEG, PRICE_KEY
 from branch_gym.env.versions import env_version
 from branch_gym.files import write_json_atomic
 from branch_gym.training.train import apply_first_action_logit
@@ -49,7 +59,11 @@ def calibration_path(model_path: str | Path) -> Path:
 
 
 def shift_hold_logit(
-    source: str | Path, shift: float, out: str | Path, return_too: bool = False
+    source: str | Path,
+    shift: float,
+    out: str | Path,
+    return_too: bool = False,
+    top_price_shift: float | None = None,
 ) -> Path:
     """Copy a discrete-action model with ``shift`` added to its "hold" (action 0) logit.
 
@@ -61,6 +75,9 @@ def shift_hold_logit(
             ``discrete_hold`` model), so that the shift makes leaving the home view rarer but not
             coming back to it: a student that turns back once nothing is pending (the
             ``privileged:home`` expert's habit) would otherwise stay turned.
+        top_price_shift: The shift at the top of the price range; ``shift`` is then the one at
+            its bottom and the shift between follows the price feature (module docstring).
+            None: ``shift`` at every price.
 
     Returns:
         ``out``.
@@ -69,7 +86,7 @@ def shift_hold_logit(
         FileNotFoundError: ``source`` does not exist.
         agents.ppo.ModelFileError: ``source`` is not a readable model.
         ValueError: a non-finite shift, a continuous-action model, or ``out`` equal to
-            ``source``.
+            ``source``; with ``top_price_shift``, a model without the price input.
     """
     if not math.isfinite(shift):
         raise ValueError(f"the hold-logit shift must be finite, got {shift}")
@@ -83,11 +100,15 @@ def shift_hold_logit(
     apply_first_action_logit(model, shift)
     if return_too:
         _shift_return_logit(model, shift)
+    if top_price_shift is not None:
+        add_price_slope(model, top_price_shift - shift, return_too)
     out.parent.mkdir(parents=True, exist_ok=True)
     model.save(out)
     provenance = {"source_model": str(source), "hold_logit_shift": float(shift)}
     if return_too:
         provenance["return_logit_shift"] = float(shift)
+    if top_price_shift is not None:
+        provenance["top_price_shift"] = float(top_price_shift)
     write_json_atomic(calibration_path(out), provenance)
     return out
 
@@ -96,13 +117,114 @@ def _shift_return_logit(model: Any, shift: float) -> None:
     """Add ``shift`` to the logit of a ``discrete_hold`` model's turn back to 0 degrees."""
     import torch
 
+    with torch.no_grad():
+        model.policy.action_net.bias[_return_action(model)] += shift
+
+
+# The carrying unit passes p through tanh twice at this small gain, where tanh is linear to
+# within (gain p)^2 / 3 relative (ours: 1e-3 -> the logit is off by ~1e-6 of the slope).
+_PASS_THROUGH_GAIN = 1e-3
+
+
+def add_price_slope(model: Any, slope: float, return_too: bool = False) -> None:
+    """Add ``slope * p`` to the hold logit (and the turn back to 0 with ``return_too``), in place.
+
+    ``p`` is the observation's price feature. The policy's MLP (``mlp_extractor.policy_net``:
+    Linear, activation, ..., Linear, activation) gains one unit per layer: the first layer's
+    reads ``gain * p`` and each later one its predecessor alone (weight 1), so it carries
+    ``tanh(...tanh(gain * p))``, which equals ``gain * p`` to ~1e-9; ``action_net`` reads it
+    with weight ``slope / gain`` on the shifted rows. Every other weight is copied, so every
+    other logit, and the value, are unchanged. The model's ``policy_kwargs`` get the widened
+    ``net_arch``, so that ``PPO.load`` rebuilds it.
+
+    Args:
+        model: A loaded discrete-action SB3 PPO whose observation holds the price
+            (``branch_gym.env.layout.PRICE_KEY``) and whose MLP activation is Tanh.
+        slope: Logits added at the top price (p = 1); finite.
+        return_too: Shift the turn back to 0 degrees as well (a ``discrete_hold`` model).
+
+    Raises:
+        ValueError: A non-finite slope, no price in the observation, or another MLP.
+    """
+    import torch
+    from torch import nn
+
+    if not math.isfinite(slope):
+        raise ValueError(f"the price slope must be finite, got {slope}")
+    policy = model.policy
+    price_index = _price_feature_index(policy)
+    linears = [m for m in policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)]
+    activations = [m for m in policy.mlp_extractor.policy_net if not isinstance(m, nn.Linear)]
+    if not linears or any(not isinstance(m, nn.Tanh) for m in activations):
+        raise ValueError("a price slope needs a policy MLP of Linear and Tanh layers")
+    kwargs = dict(model.policy_kwargs)
+    value_sizes = [
+        m.out_features for m in policy.mlp_extractor.value_net if isinstance(m, nn.Linear)
+    ]
+    kwargs["net_arch"] = {"pi": [m.out_features + 1 for m in linears], "vf": value_sizes}
+    widened = type(policy)(model.observation_space, model.action_space, model.lr_schedule, **kwargs)
+    widened.to(policy.device)
+    old, new = policy.state_dict(), widened.state_dict()
+    rows = [0]
+    if return_too:
+        rows.append(_return_action(model))
+    with torch.no_grad():
+        for name, tensor in new.items():
+            source = old[name]
+            if tensor.shape == source.shape:
+                tensor.copy_(source)
+                continue
+            tensor.zero_()  # the widened layers: the old block, then the carrying unit
+            tensor[tuple(slice(0, n) for n in source.shape)] = source
+        for k, layer in enumerate(_widened_linears(widened)):
+            if k == 0:
+                layer.weight[-1, price_index] = _PASS_THROUGH_GAIN
+            else:
+                layer.weight[-1, -1] = 1.0
+        for row in rows:
+            widened.action_net.weight[row, -1] = slope / _PASS_THROUGH_GAIN
+    widened.set_training_mode(False)
+    model.policy = widened
+    model.policy_kwargs = kwargs
+
+
+def _widened_linears(policy: Any) -> list[Any]:
+    from torch import nn
+
+    return [m for m in policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)]
+
+
+def _price_feature_index(policy: Any) -> int:
+    """Where the price sits in the policy's features (the one feature that moves with it)."""
+    import torch
+    from gymnasium import spaces
+
+    space = policy.observation_space
+    if not isinstance(space, spaces.Dict) or PRICE_KEY not in space.spaces:
+        raise ValueError(f"a price slope needs a {PRICE_KEY!r} entry in the observation")
+    extractor = getattr(policy, "pi_features_extractor", policy.features_extractor)
+    observation = {
+        key: torch.zeros((1, *part.shape), dtype=torch.float32, device=policy.device)
+        for key, part in space.spaces.items()
+    }
+    with torch.no_grad():
+        low = policy.extract_features(observation, extractor).cpu().numpy()[0]
+        observation[PRICE_KEY] = torch.ones_like(observation[PRICE_KEY])
+        high = policy.extract_features(observation, extractor).cpu().numpy()[0]
+    moved = np.flatnonzero(low != high)
+    if len(moved) != 1:
+        raise ValueError(f"the price should move one policy feature, it moves {len(moved)}")
+    return int(moved[0])
+
+
+def _return_action(model: Any) -> int:
+    """The action index of a ``discrete_hold`` model's turn back to 0 degrees."""
     env_id = model_env_id(model)
     kwargs = env_version(env_id).env_kwargs() if env_id else {}
     if kwargs.get("action_type") != "discrete_hold":
         raise ValueError(f"a return-logit shift needs a discrete_hold model, not {env_id!r}")
     angles = list(kwargs.get("discrete_angles_deg", DISCRETE_ANGLES_DEG))
-    with torch.no_grad():
-        model.policy.action_net.bias[1 + angles.index(0.0)] += shift
+    return 1 + angles.index(0.0)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -115,9 +237,17 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="shift the turn back to 0 degrees as well (only leaving home gets rarer)",
     )
+    parser.add_argument(
+        "--top-price-shift",
+        type=float,
+        help="the shift at the highest price (--hold-logit-shift: at the lowest), linear in "
+        "the price feature between them",
+    )
     args = parser.parse_args(argv)
     try:
-        written = shift_hold_logit(args.model, args.hold_logit_shift, args.out, args.return_too)
+        written = shift_hold_logit(
+            args.model, args.hold_logit_shift, args.out, args.return_too, args.top_price_shift
+        )
     except (FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -68,3 +68,43 @@ def test_return_too_makes_leaving_home_rarer_but_not_coming_back(tmp_path: Path)
 def test_return_too_needs_a_discrete_hold_model(source: Path, tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="discrete_hold"):
         shift_hold_logit(source, 1.0, tmp_path / "z.zip", return_too=True)
+
+
+def _logits_and_values(path: Path, price: float) -> tuple[np.ndarray, np.ndarray]:
+    """Action logits (relative to the last action's) and values of 16 random observations."""
+    import torch
+
+    model = load_model(path)
+    rng = np.random.default_rng(0)
+    observation = {
+        key: rng.uniform(space.low, space.high, size=(16, *space.shape)).astype(space.dtype)
+        for key, space in model.observation_space.spaces.items()
+    }
+    observation["price"][:] = price
+    tensors, _ = model.policy.obs_to_tensor(observation)
+    with torch.no_grad():
+        logits = model.policy.get_distribution(tensors).distribution.logits.numpy()
+        values = model.policy.predict_values(tensors).numpy()
+    return logits - logits[:, -1:], values
+
+
+def test_a_top_price_shift_makes_one_network_of_two_thresholds(tmp_path: Path) -> None:
+    # One sloped file answers the lowest price as the shift of 2 and the highest as that of -1,
+    # and halfway between (the price feature 0.5: 100 s a branch) as their mean.
+    sloped = shift_hold_logit(
+        "ppo_dagger_v2", 2.0, tmp_path / "sloped.zip", return_too=True, top_price_shift=-1.0
+    )
+    for price, shift in ((0.0, 2.0), (0.5, 0.5), (1.0, -1.0)):
+        fixed = shift_hold_logit("ppo_dagger_v2", shift, tmp_path / "f.zip", return_too=True)
+        got, got_values = _logits_and_values(sloped, price)
+        want, want_values = _logits_and_values(fixed, price)
+        np.testing.assert_allclose(got, want, atol=1e-4)
+        np.testing.assert_array_equal(got_values, want_values)
+    assert json.loads(calibration_path(sloped).read_text())["top_price_shift"] == -1.0
+
+
+def test_a_top_price_shift_needs_the_price_input(source: Path, tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="price"):
+        shift_hold_logit(source, 1.0, tmp_path / "p.zip", top_price_shift=0.0)
+    with pytest.raises(ValueError, match="finite"):
+        shift_hold_logit("ppo_dagger_v2", 1.0, tmp_path / "q.zip", top_price_shift=float("inf"))
