@@ -121,8 +121,8 @@ def _shift_return_logit(model: Any, shift: float) -> None:
         model.policy.action_net.bias[_return_action(model)] += shift
 
 
-# The carrying unit passes p through tanh twice at this small gain, where tanh is linear to
-# within (gain p)^2 / 3 relative (ours: 1e-3 -> the logit is off by ~1e-6 of the slope).
+# The carrying unit passes gain * p through tanh once per layer; tanh(tanh(x)) = x (1 - 2 x^2 / 3
+# + ...), so at this gain the added logit is off by under 1e-6 of the slope (ours).
 _PASS_THROUGH_GAIN = 1e-3
 
 
@@ -153,7 +153,7 @@ def add_price_slope(model: Any, slope: float, return_too: bool = False) -> None:
         raise ValueError(f"the price slope must be finite, got {slope}")
     policy = model.policy
     price_index = _price_feature_index(policy)
-    linears = [m for m in policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)]
+    linears = _policy_linears(policy)
     activations = [m for m in policy.mlp_extractor.policy_net if not isinstance(m, nn.Linear)]
     if not linears or any(not isinstance(m, nn.Tanh) for m in activations):
         raise ValueError("a price slope needs a policy MLP of Linear and Tanh layers")
@@ -176,7 +176,7 @@ def add_price_slope(model: Any, slope: float, return_too: bool = False) -> None:
                 continue
             tensor.zero_()  # the widened layers: the old block, then the carrying unit
             tensor[tuple(slice(0, n) for n in source.shape)] = source
-        for k, layer in enumerate(_widened_linears(widened)):
+        for k, layer in enumerate(_policy_linears(widened)):
             if k == 0:
                 layer.weight[-1, price_index] = _PASS_THROUGH_GAIN
             else:
@@ -188,7 +188,8 @@ def add_price_slope(model: Any, slope: float, return_too: bool = False) -> None:
     model.policy_kwargs = kwargs
 
 
-def _widened_linears(policy: Any) -> list[Any]:
+def _policy_linears(policy: Any) -> list[Any]:
+    """The Linear layers of a policy's actor MLP, in order."""
     from torch import nn
 
     return [m for m in policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)]
