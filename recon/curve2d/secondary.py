@@ -70,8 +70,8 @@ def _best_secondary(
     best, best_score = None, 0.0
     for path in paths:
         pixels, radii = sg.path_pixels(path)
-        if len(pixels) < MIN_FIT_PIXELS:
-            continue
+        if len(pixels) < MIN_FIT_PIXELS or len(pixels) <= best_score:
+            continue  # too short to fit, or to beat the best: its inliers are its pixels at most
         curve = fit_bezier(pixels)
         dist = curve.closest_params(pixels, newton_iterations=NEWTON_ITERATIONS)[1]
         inliers = dist <= config.inlier_threshold_px

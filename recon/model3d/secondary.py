@@ -22,6 +22,9 @@ from recon.geometry.bezier_fit import fit_bezier, ransac_fit_bezier
 from recon.model import BranchModel
 from recon.model3d.primary import robust_radius_profile
 
+# Relative slack of the box test of :func:`_boxes_apart` (ours: far above rounding, ~1e-16).
+_BOX_MARGIN = 1e-6
+
 
 @dataclass
 class SecondaryDetection:
@@ -158,7 +161,10 @@ class SecondaryBranches:
     # ----------------------------------------------------------------------------------------
     def _associate(self, det: SecondaryDetection) -> _Secondary | None:
         best, best_dist = None, np.inf
+        merge_m = self.config.secondary_merge_distance_m
         for branch in self._branches:
+            if _boxes_apart(det.points, branch.model.points, merge_m):
+                continue  # its overlap distance is at least merge_m: no match
             dist = _overlap_distance(det.points, branch.model.points)
             if dist < self.config.secondary_merge_distance_m and dist < best_dist:
                 if _angle_deg(_direction(det.points), _direction(branch.model.points)) <= (
@@ -245,15 +251,19 @@ class SecondaryBranches:
         self._refit(branch)
 
     def _merge_duplicates(self) -> None:
+        merge_m = self.config.secondary_merge_distance_m
         merged = True
         while merged:
             merged = False
             for i, a in enumerate(self._branches):
                 for b in self._branches[i + 1 :]:
-                    if _overlap_distance(b.model.points, a.model.points) < (
-                        self.config.secondary_merge_distance_m
-                    ) and _angle_deg(_direction(a.model.points), _direction(b.model.points)) <= (
-                        self.config.secondary_merge_angle_deg
+                    # The cheap tests first: the same decisions, without most of the overlap
+                    # distances (each builds two k-d trees).
+                    if (
+                        _angle_deg(_direction(a.model.points), _direction(b.model.points))
+                        <= self.config.secondary_merge_angle_deg
+                        and not _boxes_apart(b.model.points, a.model.points, merge_m)
+                        and _overlap_distance(b.model.points, a.model.points) < merge_m
                     ):
                         a.detections += b.detections
                         a.trust = max(a.trust, b.trust)
@@ -414,6 +424,24 @@ def _overlap_distance(a: np.ndarray, b: np.ndarray) -> float:
     duplicate).
     """
     return min(_median_distance(a, b), _median_distance(b, a))
+
+
+def _boxes_apart(a: np.ndarray, b: np.ndarray, distance_m: float) -> bool:
+    """True when the axis-aligned boxes of two point sets lie ``distance_m`` or more apart.
+
+    Every point of one is then at least that far from every point of the other, so
+    :func:`_overlap_distance` is too: a test that skips it gives the same decision. The margin
+    (``_BOX_MARGIN``, relative) keeps that true under floating-point rounding.
+
+    Args:
+        a: (N, 3) points, metres.
+        b: (M, 3) points, metres.
+        distance_m: The distance, metres.
+    """
+    if len(a) == 0 or len(b) == 0:
+        return False
+    gap = np.maximum(np.maximum(a.min(axis=0) - b.max(axis=0), b.min(axis=0) - a.max(axis=0)), 0.0)
+    return float(np.sqrt(gap @ gap)) >= distance_m * (1.0 + _BOX_MARGIN)
 
 
 def _median_distance(points: np.ndarray, reference: np.ndarray) -> float:
