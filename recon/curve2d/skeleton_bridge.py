@@ -37,6 +37,8 @@ All pixel coordinates are ``(u, v)`` = (column, row), as in ``recon.camera``.
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -143,7 +145,10 @@ def find_bridges(
     pixel_label = labels[pixels[:, 1], pixels[:, 0]]
     # Never bridge into the last radius of a skeleton end: thinning hooks it into a corner of a
     # cut end; the bridge goes past the hook, which is then pruned as a spur.
-    targetable = ~np.concatenate([_end_zone(graph, e) for e in graph.edges])
+    # Computed once, when a ray first reaches another component (most frames bridge nothing).
+    targetable = functools.cache(
+        lambda: ~np.concatenate([_end_zone(graph, e) for e in graph.edges])
+    )
     u_min, v_min, u_max, v_max = interior_uv
     angles = np.radians(np.linspace(-max_angle_deg, max_angle_deg, _RAYS))
     occlusion_angles = np.radians(
@@ -217,7 +222,7 @@ def _bridge_target(
     pixels: np.ndarray,
     pixel_label: np.ndarray,
     other_component: np.ndarray,
-    targetable: np.ndarray,
+    targetable: Callable[[], np.ndarray],
 ) -> tuple[float, int] | None:
     """(gap, index of the skeleton pixel bridged to) across the shortest gap within
     ``max_gap_px`` from the endpoint ``end``, if any: the other component's targetable skeleton
@@ -236,11 +241,12 @@ def _nearest_target(
     pixels: np.ndarray,
     pixel_label: np.ndarray,
     other_component: np.ndarray,
-    targetable: np.ndarray,
+    targetable: Callable[[], np.ndarray],
 ) -> tuple[float, int] | None:
     """(gap, index of the other component's targetable skeleton pixel on mask component
-    ``label`` nearest to ``entry``), or None when it has none."""
-    on_label = np.flatnonzero((pixel_label == label) & other_component & targetable)
+    ``label`` nearest to ``entry``), or None when it has none. ``targetable()`` gives the (P,)
+    skeleton pixels that may be bridged to (outside the end zones)."""
+    on_label = np.flatnonzero((pixel_label == label) & other_component & targetable())
     if len(on_label) == 0:
         return None
     return gap, int(on_label[np.argmin(np.linalg.norm(pixels[on_label] - entry, axis=1))])
@@ -258,7 +264,7 @@ def _occlusion_target(
     pixels: np.ndarray,
     pixel_label: np.ndarray,
     other_component: np.ndarray,
-    targetable: np.ndarray,
+    targetable: Callable[[], np.ndarray],
     rule: OcclusionRule,
 ) -> tuple[float, int] | None:
     """:func:`_bridge_target` for an occlusion bridge (:class:`OcclusionRule`), or None.
