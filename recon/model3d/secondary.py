@@ -166,7 +166,7 @@ class SecondaryBranches:
             if _boxes_apart(det.points, branch.model.points, merge_m):
                 continue  # its overlap distance is at least merge_m: no match
             dist = _overlap_distance(det.points, branch.model.points)
-            if dist < self.config.secondary_merge_distance_m and dist < best_dist:
+            if dist < merge_m and dist < best_dist:
                 if _angle_deg(_direction(det.points), _direction(branch.model.points)) <= (
                     self.config.secondary_merge_angle_deg
                 ):
