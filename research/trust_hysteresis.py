@@ -76,10 +76,15 @@ def install(support_probability: float) -> None:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0], add_help=False)
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n")[0], epilog="Every other argument goes to eval.py."
+    )
     parser.add_argument("--support-probability", type=float, required=True)
     args, eval_args = parser.parse_known_args()
-    install(args.support_probability)
+    try:
+        install(args.support_probability)
+    except ValueError as error:
+        parser.error(str(error))
     return eval_main(eval_args)
 
 
