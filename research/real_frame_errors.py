@@ -12,9 +12,16 @@ covers, how far they lie from the trunk masks, and whether the 2D stage finds th
 predicted mask and on the hand masks themselves (``real_frames.side_branches_found``, the
 ``score-real`` rule). The 2D stage finds only side branches that leave the primary.
 
+A third table asks where the image's own edges lie against each mask's outline: the mean grey
+step between a mask pixel and its 4-neighbours outside, for the mask grown or shrunk by k px, on
+the stretches where the two masks run together; the k with the largest step is where the edges
+are. With it, the IoU
+of the hand masks against themselves grown by 1 px: what a 1-px outline convention costs on
+branches a few pixels wide.
+
     python research/real_frame_errors.py ../shared/data/real_dev [--weights learned] [--no-flow]
 
-Prints two markdown tables. The frames are GPL v3: nothing of them is written.
+Prints three markdown tables. The frames are GPL v3: nothing of them is written.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from branch_gym.segmenter_training.real_frames import (
@@ -39,6 +47,16 @@ from recon.segmentation import load_segmenter
 NEAR_PX = 2.0  # "drawn wider": within this of the hand masks (our choice: a trunk's edge blur)
 MIDDLE_PX = 4.0  # "beside it": up to this
 BOTTOM_SHARE = 0.2  # the frame's bottom fifth: the trunk's base, the ground and its weeds
+OUTLINE_OFFSETS_PX = (-2, -1, 0, 1, 2)  # outlines of the mask shrunk (-) or grown (+) by k px
+TOGETHER_PX = 5  # the edge table's stretches: within this of pixels both masks take
+_SQUARE = np.ones((3, 3), np.uint8)  # one pixel of growth per iteration (8-neighbourhood)
+_ALL, _HEAD, _TAIL = slice(None), slice(1, None), slice(None, -1)
+_NEIGHBOUR_VIEWS = (  # (p, q) index pairs: q the pixel left of, right of, above, below p
+    ((_ALL, _HEAD), (_ALL, _TAIL)),
+    ((_ALL, _TAIL), (_ALL, _HEAD)),
+    ((_HEAD, _ALL), (_TAIL, _ALL)),
+    ((_TAIL, _ALL), (_HEAD, _ALL)),
+)
 
 
 @dataclass
@@ -165,6 +183,76 @@ def side_branch_report(frames: list[RealFrame], predicted: list[np.ndarray]) -> 
     return "\n".join(lines)
 
 
+def grown(mask: np.ndarray, k: int) -> np.ndarray:
+    """(H, W) bool mask grown by k px (shrunk for k < 0), 8-neighbourhood steps."""
+    m8 = mask.astype(np.uint8)
+    if k > 0:
+        m8 = cv2.dilate(m8, _SQUARE, iterations=k)
+    elif k < 0:
+        m8 = cv2.erode(m8, _SQUARE, iterations=-k)
+    return m8.astype(bool)
+
+
+def boundary_contrast(
+    rgb: np.ndarray, mask: np.ndarray, where: np.ndarray, offsets: tuple[int, ...]
+) -> list[np.ndarray]:
+    """Grey-level steps across the outline of ``mask`` grown by each offset.
+
+    A step is ``|grey(p) - grey(q)|`` for a pixel p in the mask and its 4-neighbour q outside
+    it, counted where p lies in ``where``. An outline on the image's edge crosses the full
+    contrast; one a pixel inside or outside the edge sees the flat bark or sky on both sides.
+
+    Args:
+        rgb: (H, W, 3) uint8 frame.
+        mask: (H, W) bool mask.
+        where: (H, W) bool, the pixels counted.
+        offsets: Growths in px (negative: shrunk).
+
+    Returns:
+        One (N_k,) float32 array of steps (grey levels) per offset.
+    """
+    grey = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    out = []
+    for k in offsets:
+        moved = grown(mask, k)
+        steps = []
+        for p, q in _NEIGHBOUR_VIEWS:  # p and q: views whose same index is a neighbour pair
+            edge = moved[p] & ~moved[q] & where[p]
+            steps.append(np.abs(grey[p] - grey[q])[edge])
+        out.append(np.concatenate(steps))
+    return out
+
+
+def edge_report(frames: list[RealFrame], predicted: list[np.ndarray]) -> str:
+    """The markdown table of where the image's edges lie against both outlines."""
+    ks = " / ".join(f"{k:+d}" for k in OUTLINE_OFFSETS_PX)
+    lines = [
+        f"| frame | grey step across the hand masks' outline, grown by {ks} px | "
+        f"on the predicted mask's | IoU of the hand masks with themselves grown by 1 px |",
+        "|---|---|---|---|",
+    ]
+    pooled: dict[str, list[list[np.ndarray]]] = {"hand": [], "predicted": []}
+    hits = unions = 0
+    for frame, mask in zip(frames, predicted, strict=True):
+        together = grown(frame.target & mask, TOGETHER_PX)
+        cells = []
+        for name, outline_of in (("hand", frame.target), ("predicted", mask)):
+            values = boundary_contrast(frame.rgb, outline_of, together, OUTLINE_OFFSETS_PX)
+            pooled[name].append(values)
+            cells.append(" / ".join(f"{v.mean():.0f}" if len(v) else "-" for v in values))
+        wider = grown(frame.target, 1)
+        hits += int(np.count_nonzero(frame.target))
+        unions += int(np.count_nonzero(wider))
+        cells.append(f"{np.count_nonzero(frame.target) / np.count_nonzero(wider):.3f}")
+        lines.append(f"| {frame.name} | " + " | ".join(cells) + " |")
+    cells = []
+    for name in ("hand", "predicted"):
+        per_k = zip(*pooled[name], strict=True)
+        cells.append(" / ".join(f"{np.concatenate(v).mean():.0f}" for v in per_k))
+    lines.append("| pooled | " + " | ".join(cells) + f" | {hits / max(unions, 1):.3f} |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("data", type=Path, help="a real frame folder (score-real's --data)")
@@ -178,6 +266,8 @@ def main() -> None:
     print(report(frames, predicted, args.max_shift_px))
     print()
     print(side_branch_report(frames, predicted))
+    print()
+    print(edge_report(frames, predicted))
 
 
 if __name__ == "__main__":

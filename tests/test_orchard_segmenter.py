@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import torch
 
+from branch_gym.segmenter_training.__main__ import _architecture_weights
 from branch_gym.segmenter_training.config import (
     FlowAugmentConfig,
     OrchardAugmentConfig,
@@ -23,6 +24,7 @@ from branch_gym.segmenter_training.orchard_augment import (
     training_frame,
 )
 from branch_gym.segmenter_training.orchard_pairs import (
+    ARCHITECTURES,
     OrchardPairsConfig,
     generate_orchard_shard,
 )
@@ -433,3 +435,10 @@ def _scene_flow_picture(near, far, shift_near_px, shift_far_px) -> np.ndarray:
     flow[far, 0] = -shift_far_px
     flow[near, 0] = -shift_near_px
     return flow_to_picture_fast(flow)
+
+
+def test_generate_orchard_draws_the_default_mix_or_the_presets_asked_for():
+    everything = list(ARCHITECTURES)
+    assert _architecture_weights(everything, None) == OrchardPairsConfig.architecture_weights
+    assert _architecture_weights(["ufo"], None) == (1.0,)
+    assert _architecture_weights(["ufo", "paper"], [3.0, 1.0]) == (3.0, 1.0)

@@ -44,6 +44,7 @@ from branch_gym.segmenter_training.generate import (
 )
 from branch_gym.segmenter_training.onnx_export import export_onnx
 from branch_gym.segmenter_training.orchard_pairs import (
+    ARCHITECTURES,
     OrchardPairsConfig,
     generate_orchard_shard,
     load_orchard_shards,
@@ -77,6 +78,17 @@ def _generate(args: argparse.Namespace) -> None:
         write_shard(shard_path(out, index), generate_shard(config, args.seed, index))
 
 
+def _architecture_weights(
+    architectures: list[str], weights: list[float] | None
+) -> tuple[float, ...]:
+    """``--architecture-weights``, or its default: the config's for all presets, else equal."""
+    if weights is not None:
+        return tuple(weights)
+    if tuple(architectures) == ARCHITECTURES:
+        return OrchardPairsConfig.architecture_weights
+    return (1.0,) * len(architectures)
+
+
 def _generate_orchard(args: argparse.Namespace) -> None:
     config = OrchardPairsConfig(
         trees=args.trees,
@@ -84,6 +96,8 @@ def _generate_orchard(args: argparse.Namespace) -> None:
         world=args.world,
         baseline_range_m=tuple(args.baseline_range_m),
         pitch_range_deg=tuple(args.pitch_range_deg),
+        architectures=tuple(args.architectures),
+        architecture_weights=_architecture_weights(args.architectures, args.architecture_weights),
     )
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -247,6 +261,16 @@ def main(argv: list[str] | None = None) -> int:
     gor.add_argument(
         "--pitch-range-deg", nargs=2, type=float, metavar=("LOW", "HIGH"),
         default=OrchardPairsConfig.pitch_range_deg, help="camera tilt up before the pairs",
+    )  # fmt: skip
+    gor.add_argument(
+        "--architectures", nargs="+", choices=ARCHITECTURES, default=ARCHITECTURES,
+        help="tree presets drawn from (default: all)",
+    )  # fmt: skip
+    gor.add_argument(
+        "--architecture-weights", nargs="+", type=float, metavar="W",
+        help="their probabilities, one per --architectures entry (default: "
+        f"{dict(zip(ARCHITECTURES, OrchardPairsConfig.architecture_weights, strict=True))} "
+        "for all, equal for a choice)",
     )  # fmt: skip
     gor.add_argument(
         "--evaluation", action="store_true", help="trees of seeds 0..trees-1 (held out)"
