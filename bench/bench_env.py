@@ -28,8 +28,12 @@ the same core:
 * ``env_step_orchard_learned_ms``: the LK step on the orchard world from pixels (the shipped
   learned segmenter, flow pictures from paired frames; only the frames the modeler reads are
   segmented), and ``env_step_orchard_learned_over_env_step`` its ratio to ``env_step_ms``
-  (target <= 1.6, issue 32); the two envs' episodes are taken in turn, seed by seed, so that
-  the ratio does not follow the machine's speed from one minute to the next.
+  (target <= 1.6, issue 32); the envs' episodes are taken in turn, seed by seed, so that the
+  ratio does not follow the machine's speed from one minute to the next.
+* ``env_step_orchard_labels_ms``: the same orchard step with the renderer's labels as masks,
+  taken in turn with the two above: ``env_step_orchard_labels_over_env_step`` is what the
+  orchard world itself costs (its background and camera model on every tracking frame), and
+  ``env_step_orchard_learned_over_orchard_labels`` what segmenting it from pixels adds.
 * ``env_steps_per_s_mix``: the training mode with the fixed action mix of
   :mod:`bench.action_mix` (one rotation every 10 steps) on ``MIX_SEEDS``
   (``train_over_env_fast_mix_seeds``; ``train_over_env_fast`` compares the training rate with
@@ -174,8 +178,10 @@ def _floor_figures() -> tuple[float, float]:
 def run() -> dict[str, float]:
     with one_core():
         render_ms, iteration_ms = _floor_figures()
-        lk, orchard = _interleaved(
-            {"tracker": "lk"}, {"tracker": "lk", "world": "orchard", "segmenter": "learned"}
+        lk, orchard, orchard_labels = _interleaved(
+            {"tracker": "lk"},
+            {"tracker": "lk", "world": "orchard", "segmenter": "learned"},
+            {"tracker": "lk", "world": "orchard"},
         )
         oracle = _episodes("oracle")
         fast = _episodes("oracle", render_tracking_frames=False)
@@ -194,6 +200,10 @@ def run() -> dict[str, float]:
         "env_step_ms": lk["step_ms"],
         "env_step_orchard_learned_ms": orchard["step_ms"],
         "env_step_orchard_learned_over_env_step": orchard["step_ms"] / lk["step_ms"],
+        "env_step_orchard_labels_ms": orchard_labels["step_ms"],
+        "env_step_orchard_labels_over_env_step": orchard_labels["step_ms"] / lk["step_ms"],
+        "env_step_orchard_learned_over_orchard_labels": orchard["step_ms"]
+        / orchard_labels["step_ms"],
         "env_step_floor_ms": floor_ms,
         "env_step_over_floor": lk["step_ms"] / floor_ms,
         "env_step_fast_ms": fast["step_ms"],
