@@ -26,6 +26,11 @@ frame enters the pairing history. Recorded pictures are taken as RGB; pass
 ``--flow-red-blue-swapped`` for pictures saved with ``cv2.imwrite`` of an RGB array (red and blue
 exchanged, as the authors' real pictures appear to be: ``recon/segmentation/flow.py``). Any
 other segmenter gets the previous image frame as ``previous_rgb``.
+
+A camera of another resolution (``--working-focal-px pipeline``): the pipeline's pixel
+thresholds and the shipped segmenter were made for the authors' 320x240 camera (416.8 px focal
+length); :class:`recon.io.rescale.RescaledSource` resizes a recording's frames, masks, flow
+pictures and intrinsics to a chosen focal length before anything reads them.
 """
 
 from __future__ import annotations
@@ -56,6 +61,7 @@ from recon.config import (
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
 from recon.io.mesh import TubeMeshConfig, tree_mesh, write_ply
+from recon.io.rescale import PIPELINE_FOCAL_PX, RescaledSource
 from recon.io.rosbag import add_bag_arguments, bag_config_from_args
 from recon.io.source import ScanSource, open_source
 from recon.metrics import TreeMetrics, evaluate
@@ -295,6 +301,7 @@ def replay(
     progress: bool = True,
     flow_red_blue_swapped: bool = False,
     pairing: FramePairingConfig | None = None,
+    working_focal_px: float | None = None,
 ) -> ReplayResult:
     """Run :class:`recon.modeler.Modeler` over a recorded scan and write the outputs.
 
@@ -319,6 +326,10 @@ def replay(
             (:func:`recon.segmentation.flow.swap_red_blue`) before the segmenter sees them.
         pairing: How a flow-picture segmenter's frames are paired by pose (default
             ``FramePairingConfig()``, the authors' thresholds).
+        working_focal_px: Resize the frames (images, masks, flow pictures, intrinsics) so that
+            their focal length becomes this many pixels before anything reads them
+            (:class:`recon.io.rescale.RescaledSource`; ``PIPELINE_FOCAL_PX`` is the camera the
+            pipeline's thresholds and the shipped segmenter were made for); None keeps them.
 
     Returns:
         The :class:`ReplayResult`.
@@ -333,6 +344,8 @@ def replay(
     check_output_dir(out_dir, overwrite)
     if isinstance(source, str | Path):
         source = open_source(source)
+    if working_focal_px is not None:
+        source = RescaledSource(source, working_focal_px)
     seg = load_segmenter(segmenter) if isinstance(segmenter, str | None) else segmenter
     if seg is None and not source.has_masks:
         missing = source.frames_without_mask
@@ -541,6 +554,7 @@ def _summary(
         "seed": seed,
         "tracker": tracker,
         "segmenter": segmenter if isinstance(segmenter, str | None) else type(segmenter).__name__,
+        "camera": asdict(source.intrinsics),  # as the pipeline saw the frames (maybe resized)
         "modeler_config": asdict(modeler_config),
         "model": {
             "has_primary": model.primary is not None,
@@ -572,6 +586,15 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="the recorded flow pictures have red and blue exchanged (cv2.imwrite of an RGB "
         "array, as the authors' real pictures): exchange them back (flow-picture segmenters)",
+    )
+    parser.add_argument(
+        "--working-focal-px",
+        type=_focal_px,
+        metavar="F|pipeline",
+        help="resize the frames so that their focal length becomes F px; 'pipeline': "
+        f"{PIPELINE_FOCAL_PX:.1f} px, the camera the paper's pixel thresholds and the shipped "
+        "segmenter were made for (advised for a camera of another resolution; default: as "
+        "recorded)",
     )
     parser.add_argument("--tracker", choices=TRACKERS, default="lk")
     parser.add_argument("--seed", type=int, help="modeler seed (default: the recording's, or 0)")
@@ -609,6 +632,7 @@ def main(argv: list[str] | None = None) -> int:
             overwrite=args.overwrite,
             progress=not args.no_progress,
             flow_red_blue_swapped=args.flow_red_blue_swapped,
+            working_focal_px=args.working_focal_px,
         )
     except (
         ScanFormatError,
@@ -622,6 +646,21 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     _print_summary(result)
     return 0
+
+
+def _focal_px(text: str) -> float:
+    """``--working-focal-px``: a positive number of pixels, or ``pipeline``."""
+    if text == "pipeline":
+        return PIPELINE_FOCAL_PX
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value > 0.0):
+        raise argparse.ArgumentTypeError(
+            f"expected a positive focal length in pixels or 'pipeline', got {text!r}"
+        )
+    return value
 
 
 def _print_summary(result: ReplayResult) -> None:

@@ -9,7 +9,7 @@ do the same on renders made the real frames' way: here the orchard world renders
 frames of ``branch_gym.segmenter_training.evaluate`` at ``FACTOR`` x the resolution (the camera
 model, its noise and JPEG included, at that size, as a real sensor), and resizes frame, partner
 frame and tree mask with ``INTER_AREA`` (a mask pixel is tree when half its area is: the rule
-the real hand masks get, ``real_frames.resize_mask``).
+the real hand masks get, ``recon.io.rescale.resize_mask``).
 
     python research/segmenter_supersampled.py --trees 10 --presets paper ufo   # ~1 min
 
@@ -28,8 +28,8 @@ import numpy as np
 from branch_gym.segmenter_training.config import EVAL_SEED_OFFSET
 from branch_gym.segmenter_training.evaluate import EvaluateConfig, render_eval_frames
 from branch_gym.segmenter_training.generate import branch_mask
-from branch_gym.segmenter_training.real_frames import resize_mask
 from branch_gym.sim.world import WorldConfig
+from recon.io.rescale import resize_mask
 from recon.segmentation import load_segmenter
 
 FACTOR = 2  # the real frames' 640x480 -> 320x240

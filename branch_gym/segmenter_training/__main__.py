@@ -50,6 +50,7 @@ from branch_gym.segmenter_training.orchard_pairs import (
     load_orchard_shards,
 )
 from branch_gym.segmenter_training.real_frames import (
+    DEFAULT_SIZE,
     RealScoreConfig,
     draw_score_figure,
     format_scores,
@@ -189,7 +190,9 @@ def _score_real(args: argparse.Namespace) -> None:
     spec = args.weights
     if spec != "learned" and not spec.startswith("learned:"):
         spec = f"learned:{spec}"  # a plain weights path
-    frames = load_real_frames(Path(args.data), swap_flow_red_blue=not args.flow_as_stored)
+    frames = load_real_frames(
+        Path(args.data), size=tuple(args.size), swap_flow_red_blue=not args.flow_as_stored
+    )
     config = RealScoreConfig()
     segmenter = load_segmenter(spec)
     use_flow = not args.no_flow and getattr(segmenter, "uses_flow_picture", True)
@@ -202,6 +205,7 @@ def _score_real(args: argparse.Namespace) -> None:
     tqdm.write(format_scores("hand masks (upper bound of the 2D stage)", hand))
     if args.out:
         results = {"data": str(args.data), "weights": spec, "use_flow_picture": use_flow,
+                   "size": list(args.size),
                    "flow_as_stored": args.flow_as_stored, "config": config.to_dict(),
                    "segmenter": score_report(scores), "hand_masks": score_report(hand)}  # fmt: skip
         Path(args.out).write_text(json.dumps(results, indent=2))
@@ -359,6 +363,11 @@ def main(argv: list[str] | None = None) -> int:
     sr.add_argument("--no-flow", action="store_true", help="RGB only: no flow picture input")
     sr.add_argument("--flow-as-stored", action="store_true",
                     help="do not exchange red and blue of the recorded flow pictures")  # fmt: skip
+    sr.add_argument(
+        "--size", nargs=2, type=int, metavar=("W", "H"), default=DEFAULT_SIZE,
+        help="size the frames and hand masks are resized to (default: the pipeline's camera, "
+        "320x240; the development frames' own: 640 480)",
+    )  # fmt: skip
     sr.add_argument("--out", default=None, help="write the results as JSON")
     sr.add_argument("--figure", default=None, help="write a picture grid of the results")
 

@@ -63,6 +63,7 @@ from recon.camera import DEFAULT_HEIGHT_PX, DEFAULT_WIDTH_PX
 from recon.curve2d.fit import fit_mask_curves, points_in_mask
 from recon.curve2d.types import Curve2D, Curve2DConfig, MaskCurves
 from recon.frame import as_binary_mask
+from recon.io.rescale import resize_image, resize_mask
 from recon.segmentation.flow import swap_red_blue
 from recon.segmentation.metrics import pooled_iou
 from recon.validation import require_non_negative, require_positive
@@ -94,9 +95,6 @@ DEFAULT_SIZE = (DEFAULT_WIDTH_PX, DEFAULT_HEIGHT_PX)
 
 # Hand masks on disk are 0/255 pictures; a pixel above mid-grey is drawn (tolerates antialiasing).
 MASK_LEVEL = 127
-# A resized mask pixel is on when at least half of the source area it covers is (INTER_AREA
-# averages the source pixels; 0.5 keeps a 1 px line of a 640 px wide mask at 320 px).
-MASK_AREA_THRESHOLD = 0.5
 
 _FRAME_NAME = re.compile(r"^(\d+)\.png$")
 
@@ -252,8 +250,8 @@ def load_real_frames(
         folder: The folder (e.g. ``../shared/data/real_dev``).
         size: (width, height) in pixels everything is resized to (default 320x240, the
             pipeline's camera), or None to keep the frames' own size. Images are resized with
-            ``INTER_AREA``; masks with ``INTER_AREA`` on {0, 1} then thresholded at
-            :data:`MASK_AREA_THRESHOLD`.
+            ``INTER_AREA`` (``recon.io.rescale.resize_image``); masks by area and thresholded at
+            half (``recon.io.rescale.resize_mask``).
         swap_flow_red_blue: Exchange red and blue of the flow pictures after reading them as
             RGB, so that they code motion as ``recon.segmentation.flow.flow_to_picture`` does
             (the recorded pictures hold the coding with red and blue exchanged, see the module
@@ -310,8 +308,8 @@ def _load_frame(path: Path, size: tuple[int, int] | None, swap_flow: bool) -> Re
         raise ValueError(f"frame {path} has no trunk mask ({name}_trunk_K.png)")
     sides = [_read_mask(p, native, path) for p in _mask_paths(path, "sidebranch")]
     if size is not None and (size[1], size[0]) != native:
-        rgb = cv2.resize(rgb, size, interpolation=cv2.INTER_AREA)
-        flow = None if flow is None else cv2.resize(flow, size, interpolation=cv2.INTER_AREA)
+        rgb = resize_image(rgb, size)
+        flow = None if flow is None else resize_image(flow, size)
         trunks = [resize_mask(m, size) for m in trunks]
         sides = [resize_mask(m, size) for m in sides]
     for kind, masks in (("trunk", trunks), ("sidebranch", sides)):
@@ -355,13 +353,6 @@ def _check_size(got: tuple[int, ...], want: tuple[int, ...], path: Path, frame: 
         raise ValueError(
             f"{path} is {got[1]}x{got[0]} px but its frame {frame.name} is {want[1]}x{want[0]} px"
         )
-
-
-def resize_mask(mask: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """(H', W') bool mask resized to ``size`` = (W', H') by area, thresholded
-    (``MASK_AREA_THRESHOLD``): how the real hand masks reach the camera's resolution."""
-    area = cv2.resize(mask.astype(np.float32), size, interpolation=cv2.INTER_AREA)
-    return area >= MASK_AREA_THRESHOLD
 
 
 # ---------------------------------------------------------------------------------- scoring
