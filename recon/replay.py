@@ -52,6 +52,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from recon.camera import CameraIntrinsics
 from recon.config import (
     ModelerConfig,
     add_modeler_argument,
@@ -61,7 +62,7 @@ from recon.config import (
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
 from recon.io.mesh import TubeMeshConfig, tree_mesh, write_ply
-from recon.io.rescale import PIPELINE_FOCAL_PX, RescaledSource
+from recon.io.rescale import FOCAL_WARNING_RATIO, PIPELINE_FOCAL_PX, RescaledSource
 from recon.io.rosbag import add_bag_arguments, bag_config_from_args
 from recon.io.source import ScanSource, open_source
 from recon.metrics import TreeMetrics, evaluate
@@ -347,6 +348,8 @@ def replay(
     if working_focal_px is not None:
         source = RescaledSource(source, working_focal_px)
     seg = load_segmenter(segmenter) if isinstance(segmenter, str | None) else segmenter
+    if seg is not None and working_focal_px is None:
+        _warn_of_focal_length(source.intrinsics)
     if seg is None and not source.has_masks:
         missing = source.frames_without_mask
         raise ReplayError(
@@ -646,6 +649,20 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     _print_summary(result)
     return 0
+
+
+def _warn_of_focal_length(intrinsics: CameraIntrinsics) -> None:
+    """Warn when a segmenter is to read frames of a focal length far from the pipeline's."""
+    focal = 0.5 * (intrinsics.fx + intrinsics.fy)
+    ratio = focal / PIPELINE_FOCAL_PX
+    if not 1.0 / FOCAL_WARNING_RATIO <= ratio <= FOCAL_WARNING_RATIO:
+        logger.warning(
+            "the frames' focal length is %.0f px, %.2fx the %.1f px the segmenter was trained "
+            "at: pass --working-focal-px pipeline (docs/replay.md)",
+            focal,
+            ratio,
+            PIPELINE_FOCAL_PX,
+        )
 
 
 def _focal_px(text: str) -> float:

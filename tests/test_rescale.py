@@ -84,3 +84,15 @@ def test_cli_takes_pipeline_or_pixels_and_names_a_bad_value(recording, tmp_path,
     with pytest.raises(SystemExit):
         main([*args, "wide", "--out", str(tmp_path / "c")])
     assert "positive focal length in pixels or 'pipeline'" in capsys.readouterr().err
+
+
+def test_replay_warns_of_a_segmenter_reading_frames_of_another_focal_length(caplog):
+    from recon.replay import _warn_of_focal_length
+
+    with caplog.at_level("WARNING", logger="recon.replay"):
+        _warn_of_focal_length(CameraIntrinsics.from_fov())
+        _warn_of_focal_length(CameraIntrinsics.from_fov(352, 264))  # 1.1x: close enough
+    assert not caplog.records
+    with caplog.at_level("WARNING", logger="recon.replay"):
+        _warn_of_focal_length(CameraIntrinsics.from_fov(640, 480))
+    assert "--working-focal-px pipeline" in caplog.text and "2.00x" in caplog.text

@@ -33,6 +33,12 @@ PIPELINE_FOCAL_PX = CameraIntrinsics.from_fov().fx
 """Focal length (px) of the camera the pipeline's pixel thresholds and the shipped segmenter
 were made for: the authors' simulated camera, 320x240 px, 42 deg horizontal FoV (~416.8 px)."""
 
+FOCAL_WARNING_RATIO = 1.25
+"""``recon.replay`` warns when a segmenter is to read frames whose focal length lies this factor
+or more from :data:`PIPELINE_FOCAL_PX` (ours: on the real development frames, resized by 0.9 or
+1.25 the segmenter's IoU moved by 2 points or less, at twice the size it lost 10:
+``docs/orchard_segmenter.md``, "What was tried", and ``docs/replay.md``)."""
+
 MASK_AREA_THRESHOLD = 0.5
 """A resized mask pixel is on when at least half of the source area it covers is (INTER_AREA
 averages the source pixels; 0.5 keeps a 1 px line of a 640 px wide mask at 320 px)."""
