@@ -36,7 +36,7 @@ were made for: the authors' simulated camera, 320x240 px, 42 deg horizontal FoV 
 FOCAL_WARNING_RATIO = 1.25
 """``recon.replay`` warns when a segmenter is to read frames whose focal length lies this factor
 or more from :data:`PIPELINE_FOCAL_PX` (ours: on the real development frames, resized by 0.9 or
-1.25 the segmenter's IoU moved by 2 points or less, at twice the size it lost 10:
+1.25 the segmenter's IoU moved by 2.2 points or less, at twice the size it lost 10:
 ``docs/orchard_segmenter.md``, "What was tried", and ``docs/replay.md``)."""
 
 MASK_AREA_THRESHOLD = 0.5
