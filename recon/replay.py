@@ -27,10 +27,11 @@ frame enters the pairing history. Recorded pictures are taken as RGB; pass
 exchanged, as the authors' real pictures appear to be: ``recon/segmentation/flow.py``). Any
 other segmenter gets the previous image frame as ``previous_rgb``.
 
-A camera of another resolution (``--working-focal-px pipeline``): the pipeline's pixel
-thresholds and the shipped segmenter were made for the authors' 320x240 camera (416.8 px focal
-length); :class:`recon.io.rescale.RescaledSource` resizes a recording's frames, masks, flow
-pictures and intrinsics to a chosen focal length before anything reads them.
+A camera of another resolution (``--working-focal-px``): the pipeline's pixel thresholds and
+our segmenters were made for the authors' 320x240 camera (416.8 px focal length);
+:class:`recon.io.rescale.RescaledSource` resizes a recording's frames, masks, flow pictures and
+intrinsics to a chosen focal length before anything reads them. With ``--segmenter learned``
+that is the default (``auto``); recorded masks are read as recorded unless asked.
 """
 
 from __future__ import annotations
@@ -52,7 +53,6 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from recon.camera import CameraIntrinsics
 from recon.config import (
     ModelerConfig,
     add_modeler_argument,
@@ -62,7 +62,7 @@ from recon.config import (
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
 from recon.io.mesh import TubeMeshConfig, tree_mesh, write_ply
-from recon.io.rescale import FOCAL_WARNING_RATIO, PIPELINE_FOCAL_PX, RescaledSource
+from recon.io.rescale import PIPELINE_FOCAL_PX, RescaledSource
 from recon.io.rosbag import add_bag_arguments, bag_config_from_args
 from recon.io.source import ScanSource, open_source
 from recon.metrics import TreeMetrics, evaluate
@@ -302,7 +302,7 @@ def replay(
     progress: bool = True,
     flow_red_blue_swapped: bool = False,
     pairing: FramePairingConfig | None = None,
-    working_focal_px: float | None = None,
+    working_focal_px: float | str | None = "auto",
 ) -> ReplayResult:
     """Run :class:`recon.modeler.Modeler` over a recorded scan and write the outputs.
 
@@ -329,8 +329,11 @@ def replay(
             ``FramePairingConfig()``, the authors' thresholds).
         working_focal_px: Resize the frames (images, masks, flow pictures, intrinsics) so that
             their focal length becomes this many pixels before anything reads them
-            (:class:`recon.io.rescale.RescaledSource`; ``PIPELINE_FOCAL_PX`` is the camera the
-            pipeline's thresholds and the shipped segmenter were made for); None keeps them.
+            (:class:`recon.io.rescale.RescaledSource`); None keeps them as recorded.
+            ``"auto"`` (default): ``PIPELINE_FOCAL_PX``, the camera the pipeline's thresholds
+            and every network of ``branch_gym``'s segmenter training were made for, with a
+            ``learned[:PATH]`` segmenter; as recorded with recorded masks or a segmenter object
+            of your own.
 
     Returns:
         The :class:`ReplayResult`.
@@ -345,11 +348,8 @@ def replay(
     check_output_dir(out_dir, overwrite)
     if isinstance(source, str | Path):
         source = open_source(source)
-    if working_focal_px is not None:
-        source = RescaledSource(source, working_focal_px)
+    source = _at_working_focal_length(source, working_focal_px, segmenter)
     seg = load_segmenter(segmenter) if isinstance(segmenter, str | None) else segmenter
-    if seg is not None and working_focal_px is None:
-        _warn_of_focal_length(source.intrinsics)
     if seg is None and not source.has_masks:
         missing = source.frames_without_mask
         raise ReplayError(
@@ -593,11 +593,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--working-focal-px",
         type=_focal_px,
-        metavar="F|pipeline",
+        default="auto",
+        metavar="F|pipeline|native|auto",
         help="resize the frames so that their focal length becomes F px; 'pipeline': "
-        f"{PIPELINE_FOCAL_PX:.1f} px, the camera the paper's pixel thresholds and the shipped "
-        "segmenter were made for (advised for a camera of another resolution; default: as "
-        "recorded)",
+        f"{PIPELINE_FOCAL_PX:.1f} px, the camera the paper's pixel thresholds and our "
+        "segmenters were made for; 'native': as recorded; 'auto' (default): 'pipeline' with "
+        "--segmenter learned[:PATH], else 'native'",
     )
     parser.add_argument("--tracker", choices=TRACKERS, default="lk")
     parser.add_argument("--seed", type=int, help="modeler seed (default: the recording's, or 0)")
@@ -651,31 +652,34 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _warn_of_focal_length(intrinsics: CameraIntrinsics) -> None:
-    """Warn when a segmenter is to read frames of a focal length far from the pipeline's."""
-    focal = 0.5 * (intrinsics.fx + intrinsics.fy)
-    ratio = focal / PIPELINE_FOCAL_PX
-    if not 1.0 / FOCAL_WARNING_RATIO <= ratio <= FOCAL_WARNING_RATIO:
-        logger.warning(
-            "the frames' focal length is %.0f px, %.2fx the %.1f px the segmenter was trained "
-            "at: pass --working-focal-px pipeline (docs/replay.md)",
-            focal,
-            ratio,
-            PIPELINE_FOCAL_PX,
-        )
+def _at_working_focal_length(
+    source: ScanSource, focal_px: float | str | None, segmenter: str | object | None
+) -> ScanSource:
+    """``source`` resized to the working focal length of :func:`replay` (its docstring)."""
+    if focal_px == "auto":
+        learned = isinstance(segmenter, str) and is_learned_segmenter(segmenter)
+        focal_px = PIPELINE_FOCAL_PX if learned else None
+    if focal_px is None:
+        return source
+    if isinstance(focal_px, str):
+        raise ValueError(f"working_focal_px must be a number, 'auto' or None, got {focal_px!r}")
+    rescaled = RescaledSource(source, focal_px)
+    intrinsics = source.intrinsics
+    return source if rescaled.size == (intrinsics.width, intrinsics.height) else rescaled
 
 
-def _focal_px(text: str) -> float:
-    """``--working-focal-px``: a positive number of pixels, or ``pipeline``."""
-    if text == "pipeline":
-        return PIPELINE_FOCAL_PX
+def _focal_px(text: str) -> float | str | None:
+    """``--working-focal-px``: a positive number of pixels, ``pipeline``, ``native`` or ``auto``."""
+    if text in ("auto", "native", "pipeline"):
+        return {"auto": "auto", "native": None, "pipeline": PIPELINE_FOCAL_PX}[text]
     try:
         value = float(text)
     except ValueError:
         value = math.nan
     if not (math.isfinite(value) and value > 0.0):
         raise argparse.ArgumentTypeError(
-            f"expected a positive focal length in pixels or 'pipeline', got {text!r}"
+            f"expected a positive focal length in pixels, 'pipeline', 'native' or 'auto', got "
+            f"{text!r}"
         )
     return value
 

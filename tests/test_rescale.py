@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import sys
+import types
 from pathlib import Path
 
 import numpy as np
@@ -83,16 +85,33 @@ def test_cli_takes_pipeline_or_pixels_and_names_a_bad_value(recording, tmp_path,
     assert (summary["camera"]["width"], summary["camera"]["height"]) == (160, 120)
     with pytest.raises(SystemExit):
         main([*args, "wide", "--out", str(tmp_path / "c")])
-    assert "positive focal length in pixels or 'pipeline'" in capsys.readouterr().err
+    assert "positive focal length in pixels, 'pipeline'" in capsys.readouterr().err
 
 
-def test_replay_warns_of_a_segmenter_reading_frames_of_another_focal_length(caplog):
-    from recon.replay import _warn_of_focal_length
+def test_our_learned_segmenter_reads_the_pipelines_focal_length_unless_asked(
+    recording, tmp_path, monkeypatch
+):
+    sizes = []
 
-    with caplog.at_level("WARNING", logger="recon.replay"):
-        _warn_of_focal_length(CameraIntrinsics.from_fov())
-        _warn_of_focal_length(CameraIntrinsics.from_fov(352, 264))  # 1.1x: close enough
-    assert not caplog.records
-    with caplog.at_level("WARNING", logger="recon.replay"):
-        _warn_of_focal_length(CameraIntrinsics.from_fov(640, 480))
-    assert "--working-focal-px pipeline" in caplog.text and "2.00x" in caplog.text
+    class Sizer:  # records the frame sizes it is given; a vertical bar for a mask
+        def segment(self, rgb, previous_rgb=None):
+            sizes.append(rgb.shape[:2])
+            mask = np.zeros(rgb.shape[:2], bool)
+            mask[:, rgb.shape[1] // 2 - 3 : rgb.shape[1] // 2 + 3] = True
+            return mask
+
+    fake = types.ModuleType("recon.segmentation")
+    fake.load_segmenter = lambda spec: Sizer()
+    monkeypatch.setitem(sys.modules, "recon.segmentation", fake)
+    source = open_source(recording)
+    doubled = RescaledSource(source, 2.0 * source.intrinsics.fx)
+    for name, kwargs, seen in (
+        ("auto", {"segmenter": "learned"}, (240, 320)),
+        ("native", {"segmenter": "learned", "working_focal_px": None}, (480, 640)),
+        ("own", {"segmenter": Sizer()}, (480, 640)),  # a segmenter of your own: as recorded
+    ):
+        sizes.clear()
+        replay(doubled, tmp_path / name, progress=False, **kwargs)
+        assert set(sizes) == {seen}, name
+    with pytest.raises(ValueError, match="working_focal_px"):
+        replay(doubled, tmp_path / "bad", progress=False, working_focal_px="wide")

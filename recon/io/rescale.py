@@ -10,9 +10,10 @@ the shipped segmenter reads 0.54 pooled IoU, at 320x240 0.65 (``docs/replay.md``
 
 :class:`RescaledSource` wraps any :class:`recon.io.ScanSource` and resizes its undistorted
 frames so that their focal length becomes ``focal_px`` (``python -m recon.replay
---working-focal-px``): images and flow pictures by area when shrinking (bilinear when
-growing), masks by area and thresholded at half (:func:`resize_mask`), the intrinsics scaled
-with them (pixel centres kept: ``c' = (c + 0.5) * s - 0.5``).
+--working-focal-px``; by default :data:`PIPELINE_FOCAL_PX` with ``--segmenter learned``):
+images and flow pictures by area when shrinking (bilinear when growing), masks by area and
+thresholded at half (:func:`resize_mask`), the intrinsics scaled with them (pixel centres
+kept: ``c' = (c + 0.5) * s - 0.5``).
 """
 
 from __future__ import annotations
@@ -32,12 +33,6 @@ from recon.io.source import ScanSource
 PIPELINE_FOCAL_PX = CameraIntrinsics.from_fov().fx
 """Focal length (px) of the camera the pipeline's pixel thresholds and the shipped segmenter
 were made for: the authors' simulated camera, 320x240 px, 42 deg horizontal FoV (~416.8 px)."""
-
-FOCAL_WARNING_RATIO = 1.25
-"""``recon.replay`` warns when a segmenter is to read frames whose focal length lies this factor
-or more from :data:`PIPELINE_FOCAL_PX` (ours: on the real development frames, resized by 0.9 or
-1.25 the segmenter's IoU moved by 2.2 points or less, at twice the size it lost 10:
-``docs/orchard_segmenter.md``, "What was tried", and ``docs/replay.md``)."""
 
 MASK_AREA_THRESHOLD = 0.5
 """A resized mask pixel is on when at least half of the source area it covers is (INTER_AREA
