@@ -48,7 +48,7 @@ NEAR_PX = 2.0  # "drawn wider": within this of the hand masks (our choice: a tru
 MIDDLE_PX = 4.0  # "beside it": up to this
 BOTTOM_SHARE = 0.2  # the frame's bottom fifth: the trunk's base, the ground and its weeds
 OUTLINE_OFFSETS_PX = (-2, -1, 0, 1, 2)  # outlines of the mask shrunk (-) or grown (+) by k px
-TOGETHER_PX = 5  # the edge table's stretches: within this of pixels both masks take
+TOGETHER_PX = 5  # the edge table's stretches: within this (Euclidean) of pixels both masks take
 _SQUARE = np.ones((3, 3), np.uint8)  # one pixel of growth per iteration (8-neighbourhood)
 _ALL, _HEAD, _TAIL = slice(None), slice(1, None), slice(None, -1)
 _NEIGHBOUR_VIEWS = (  # (p, q) index pairs: q the pixel left of, right of, above, below p
@@ -234,7 +234,7 @@ def edge_report(frames: list[RealFrame], predicted: list[np.ndarray]) -> str:
     pooled: dict[str, list[list[np.ndarray]]] = {"hand": [], "predicted": []}
     hits = unions = 0
     for frame, mask in zip(frames, predicted, strict=True):
-        together = grown(frame.target & mask, TOGETHER_PX)
+        together = distance_to_mask(frame.target & mask) <= TOGETHER_PX
         cells = []
         for name, outline_of in (("hand", frame.target), ("predicted", mask)):
             values = boundary_contrast(frame.rgb, outline_of, together, OUTLINE_OFFSETS_PX)
