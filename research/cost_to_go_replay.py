@@ -9,7 +9,7 @@ turn lost more than ``LOSS_MARGIN`` branch against holding, this prints both end
 (checked against ``branches.jsonl``), the failure, matched, spurious and duplicate branches, scan
 time.
 
-    python research/cost_to_go_replay.py research/records/aggrevate_orchard_v2 --cases 12
+    python research/cost_to_go_replay.py runs/aggrevate_orchard --cases 12   # a cost-to-go run
 """
 
 from __future__ import annotations

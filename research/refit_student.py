@@ -4,7 +4,7 @@ A study of the fit alone: the labels (``round_K.npz``) stay as the run made them
 with other settings (rotation weight, label weights, epochs) compare on the same data. The run's
 own ``--resume`` fits the next round's student with changed settings, but plays that round first.
 
-    python research/refit_student.py research/records/aggrevate_orchard_v2 runs/refit/rw8.zip \
+    python research/refit_student.py runs/aggrevate_orchard runs/refit/rw8.zip \
         --set rotation_weight=8
 
 ``--also RUN ...`` adds the labels of other runs of the same training settings (``train``), e.g.
