@@ -4,7 +4,7 @@ This is the one place where the simulator meets the pipeline's input format. A r
 the same with its camera driver and segmenter (``recon/replay.py`` reads recorded frames).
 
 =========================  =====================================================================
-segmenter spec             mask from
+segmenter spec             mask from (:class:`SimSegmenterSpec`)
 =========================  =====================================================================
 ``gt``                     the renderer's instance labels (exact)
 ``noisy:PRESET``           the labels with segmentation errors (``mild``, ``moderate``,
@@ -32,35 +32,29 @@ segmented (``Sensor.capture(..., segment=False)``, see :meth:`branch_gym.scan.Sc
 modeler reads the mask of the frame an iteration runs on, never those of the tracking-only
 frames in between (7 of every 8 rendered frames with the default tracker).
 
-=========================  =====================================================================
-tracker name               point tracker (:mod:`recon.tracking`)
-=========================  =====================================================================
-``lk``                     Lucas-Kanade on the rendered images (what a real robot runs)
-``oracle``                 exact tracks from the rendered depth (ablations, fast training)
-=========================  =====================================================================
+The point trackers by name (``lk``, ``oracle``): :func:`recon.tracking.make_tracker`.
 """
 
 from __future__ import annotations
 
 import time
-from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
 
 from branch_gym.attribution import BranchVisibility
 from branch_gym.sim.scene.camera_spec import CameraSpec
-from branch_gym.sim.segmentation import SEGMENTER_NAMES, Segmenter
+from branch_gym.sim.segmentation import PRESET_NAMES, Segmenter
 from branch_gym.sim.segmentation import make_segmenter as make_label_segmenter
 from branch_gym.sim.world import World
 from recon.camera import CameraIntrinsics
 from recon.frame import Frame
-from recon.segmentation import LearnedSegmenter, default_weights_path, load_segmenter
+from recon.segmentation import LearnedSegmenter, load_segmenter
 from recon.segmentation.flow import FramePairer, FramePairingConfig
-from recon.tracking import DepthOracleTracker, LucasKanadeTracker, PointTracker
+from recon.segmentation.segmenter import weights_path_of
+from recon.segmentation.spec import SegmenterSpec, SpecKind
 
-TRACKERS = ("lk", "oracle")
-LEARNED_KIND = "learned"
 SCAN_TORCH_THREADS = 1  # a simulated scan is one process per core (see RGBSegmenter)
 # Which child of the scan seed's SeedSequence drives the segmenter's noise (the world and the
 # modeler draw from their own).
@@ -73,17 +67,15 @@ def intrinsics_from_spec(spec: CameraSpec) -> CameraIntrinsics:
     return CameraIntrinsics(spec.width, spec.height, spec.fx, spec.fy, spec.cx, spec.cy)
 
 
-def make_tracker(name: str) -> PointTracker:
-    """The point tracker called ``name`` ("lk" or "oracle").
+class SimSegmenterSpec(SegmenterSpec):
+    """A simulated scan's segmenter spec: recon's ``learned[:PATH]`` and the renderer's labels,
+    ``gt`` (exact) and ``noisy:PRESET`` (module docstring)."""
 
-    Raises:
-        ValueError: an unknown name, listing the valid ones.
-    """
-    if name == "lk":
-        return LucasKanadeTracker()
-    if name == "oracle":
-        return DepthOracleTracker()
-    raise ValueError(f"unknown tracker {name!r}: expected one of {TRACKERS}")
+    KINDS: ClassVar = {
+        "gt": SpecKind(),
+        "noisy": SpecKind(PRESET_NAMES),
+        **SegmenterSpec.KINDS,
+    }
 
 
 class RGBSegmenter:
@@ -175,12 +167,12 @@ class RGBSegmenter:
 
 
 def make_segmenter(
-    spec: str, pairing: FramePairingConfig | None = None
+    spec: str | SegmenterSpec, pairing: FramePairingConfig | None = None
 ) -> Segmenter | RGBSegmenter:
     """The segmenter of a spec (see the module docstring).
 
     Args:
-        spec: A segmenter spec (module docstring).
+        spec: A segmenter spec (module docstring), text or parsed.
         pairing: Frame pairing of a flow-picture network (default ``FramePairingConfig()``).
 
     Raises:
@@ -188,29 +180,24 @@ def make_segmenter(
         recon.segmentation.SegmenterWeightsError: a missing, corrupt or mismatched weights file
             (named).
     """
-    if spec.split(":")[0] == LEARNED_KIND:
+    spec = SimSegmenterSpec.parse(spec)
+    if spec.is_learned:
         return RGBSegmenter(load_segmenter(spec), pairing)
-    try:
-        return make_label_segmenter(spec)
-    except ValueError:
-        raise ValueError(
-            f"unknown segmenter {spec!r}; valid: {(*SEGMENTER_NAMES, 'learned', 'learned:PATH')}"
-        ) from None
+    return make_label_segmenter(str(spec))
 
 
-def check_segmenter_spec(spec: str) -> None:
+def check_segmenter_spec(spec: str | SegmenterSpec) -> None:
     """Validate a segmenter spec cheaply (a ``learned`` weights file must exist, loaded later).
 
     Raises:
         ValueError: an unknown spec, or a ``learned`` spec whose weights file does not exist.
     """
-    kind, _, path = spec.partition(":")
-    if kind != LEARNED_KIND:
-        make_segmenter(spec)
+    spec = SimSegmenterSpec.parse(spec)
+    if not spec.is_learned:
         return
-    weights = Path(path).expanduser() if path else default_weights_path()
+    weights = weights_path_of(spec)
     if not weights.is_file():
-        raise ValueError(f"segmenter {spec!r}: weights file {weights} does not exist")
+        raise ValueError(f"segmenter {str(spec)!r}: weights file {weights} does not exist")
 
 
 class Sensor:

@@ -14,7 +14,6 @@ from dataclasses import dataclass, fields, replace
 
 from recon.validation import require_positive
 
-LEARNED_SEGMENTER = "learned"  # the kind of a learned segmenter's spec: "learned[:PATH]"
 # ModelerConfig.secondary_min_reach_m for a learned segmenter's masks (ours): the largest reach
 # that left every policy's missed branches unchanged on 30 validation trees of the orchard world
 # from pixels (seeds 10,000,000+, never the tables'), re-scored from the saved models. Spurious:
@@ -23,12 +22,6 @@ LEARNED_SEGMENTER = "learned"  # the kind of a learned segmenter's spec: "learne
 # Tall spindle: no branch lost. UFO: one of 64-66 lost under none and 22.5 deg / 1.5 (steep
 # thin side branches reach little): there, 0 keeps every branch.
 LEARNED_MASK_MIN_REACH_M = 0.03
-
-
-def is_learned_segmenter(spec: object) -> bool:
-    """Whether a segmenter spec (``"learned"``, ``"learned:PATH"``; any other value: no) names a
-    learned segmenter, whose masks :meth:`ModelerConfig.for_masks` treats as approximate."""
-    return isinstance(spec, str) and spec.split(":", 1)[0] == LEARNED_SEGMENTER
 
 
 @dataclass(frozen=True)
@@ -62,8 +55,6 @@ class ModelerConfig:
         max_depth_m: Lifted points deeper than this are dropped (paper IV: 1 m).
         max_reprojection_px: Lifted points with a larger reprojection error are dropped
             (paper IV: 4 px).
-        model_reprojection_px: Existing model points further than this from the 2D curve are dropped
-            before refitting (paper IV: 4 px).
         ransac_inlier_m: RANSAC inlier threshold for the 3D Bezier fit (paper IV: 3 cm).
         ransac_min_inlier_fraction: Below this inlier fraction the frame is Inconsistent
             (paper IV: 60 %).
@@ -119,27 +110,6 @@ class ModelerConfig:
             several cm; off, secondaries start where the first lifted sample is).
         secondary_trust_min: A secondary whose trust falls below this is deleted (the authors'
             code kept a trust score, reference.md; threshold our choice).
-        secondary_trust_in_view: Share of a secondary's observed points that must project into
-            the image (``image_margin_px`` inside) for a frame to change its trust; 0 (the
-            default) counts any frame that shows two of them, the paper's "visible branch". A
-            branch leaving the view at the image border, or swept past it during a rotation,
-            loses trust on its last few points there (measured, seed 24: a 6 cm branch matched at
-            trust 6 was deleted during the rotation that followed; with 0.5 it stays). On the 60
-            benchmark trees 0.5 left no rotation unchanged and found one more branch for 45 deg /
-            1.5 and for the v2 student, with one more duplicate for both 1.5 FoV periodic
-            settings: not adopted as the default on that evidence.
-        secondary_trust_redetected: A secondary that a detection of the frame joined counts as
-            on the mask for that frame's trust, wherever its refitted model projects (ours). The
-            model is fitted to every view's observations; after rotations it can sit ~1.5 cm
-            off a branch that each new view still detects, and its projection missing the thin
-            mask took one trust point per iteration while the detections went on (measured,
-            validation tree 10,000,035: a branch detected 41 times, 15 mm off, deleted after
-            6 iterations of re-detections; on, it stayed and matched). Off, the default: the
-            projection alone decides (authors' code). On 40 validation trees (seeds 10,000,000+,
-            LK) it changed nothing for no rotation, periodic 22.5 deg / 1.5 and the privileged
-            policy, found one more branch for the v2 student's hold -1 threshold (3 against 4
-            missed) and kept 3 more duplicates (v2 student 1, hold -1 2): too little evidence to
-            regenerate every table on.
         secondary_trust_tolerance_px: A secondary's projected point counts as on the mask for its
             trust when a mask pixel lies within this distance; 0 is the pixel itself (the
             authors' code). None (the default) is resolved by :meth:`for_masks` where the mask
@@ -174,7 +144,6 @@ class ModelerConfig:
             ``LEARNED_MASK_MIN_REACH_M``'s comment.
         secondary_max_observations: Most raw lifted points kept per secondary (memory bound).
         secondary_sample_spacing_m: Spacing of the reported secondary centerline points.
-        primary_sample_spacing_m: Spacing of the reported primary centerline points.
     """
 
     iteration_spacing_m: float = 0.010
@@ -187,7 +156,6 @@ class ModelerConfig:
     restart_after_inconsistent: int = 3
     max_depth_m: float = 1.0
     max_reprojection_px: float = 4.0
-    model_reprojection_px: float = 4.0
     ransac_inlier_m: float = 0.03
     ransac_min_inlier_fraction: float = 0.6
     ransac_iterations: int = 40
@@ -208,22 +176,18 @@ class ModelerConfig:
     secondary_max_foreshortening: float = 6.0
     secondary_extend_to_junction: bool = True
     secondary_trust_min: int = -2
-    secondary_trust_in_view: float = 0.0
-    secondary_trust_redetected: bool = False
     secondary_trust_tolerance_px: float | None = None
     secondary_order_from_junction: bool = True
     secondary_confirmations: int = 1
     secondary_min_reach_m: float | None = None
     secondary_max_observations: int = 400
     secondary_sample_spacing_m: float = 0.005
-    primary_sample_spacing_m: float = 0.005
 
     def __post_init__(self) -> None:
         not_positive = (
             "primary_max_turn_deg",
             "secondary_min_reach_m",
             "secondary_trust_min",
-            "secondary_trust_in_view",
             "secondary_trust_tolerance_px",
             "secondary_min_view_angle_deg",
             "primary_depth_gate_m",
@@ -242,8 +206,6 @@ class ModelerConfig:
         ):
             if getattr(self, name) > 1:
                 raise ValueError(f"ModelerConfig.{name} is a fraction in (0, 1]")
-        if not 0.0 <= self.secondary_trust_in_view <= 1.0:
-            raise ValueError("ModelerConfig.secondary_trust_in_view is a fraction in [0, 1]")
         for name in ("primary_depth_gate_m", "primary_front_depth_gate_m"):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"ModelerConfig.{name} must be >= 0")
@@ -300,6 +262,39 @@ class ModelerConfig:
         return replace(self, **resolved) if resolved else self
 
 
+@dataclass(frozen=True)
+class RemovedField:
+    """A :class:`ModelerConfig` field that is gone; a setting of it is refused, naming it.
+
+    Attributes:
+        value: The value every published result ran with: today's code behaves as it did (trial
+            hashes count the field at this value, ``branch_gym.evaluation.trials.config_hash``).
+        why: Why it went.
+    """
+
+    value: object
+    why: str
+
+
+_DROPPED_TRUST = "a dropped experiment: docs/results/history.md, 'Trust options'"
+REMOVED_MODELER_FIELDS: dict[str, RemovedField] = {
+    "model_reprojection_px": RemovedField(4.0, "nothing read it"),
+    "primary_sample_spacing_m": RemovedField(0.005, "nothing read it"),
+    "secondary_trust_in_view": RemovedField(0.0, _DROPPED_TRUST),
+    "secondary_trust_redetected": RemovedField(False, _DROPPED_TRUST),
+}
+"""Field name -> what it was, for the settings and recordings that still name it."""
+
+
+def removed_field_message(name: str) -> str:
+    """Why a setting of the removed ModelerConfig field ``name`` is not taken."""
+    removed = REMOVED_MODELER_FIELDS[name]
+    return (
+        f"ModelerConfig field {name!r} was removed ({removed.why}); the modeler runs as it did "
+        f"at {name}={json.dumps(removed.value)}"
+    )
+
+
 def add_modeler_argument(parser: argparse.ArgumentParser, example: str) -> None:
     """Add ``--modeler FIELD=VALUE ...`` to a command line (read it with :func:`modeler_overrides`).
 
@@ -326,8 +321,9 @@ def modeler_overrides(items: Sequence[str]) -> dict[str, object]:
         Field name -> value, for ``dataclasses.replace(config, **overrides)`` (which validates).
 
     Raises:
-        ValueError: An item without ``=``, an unknown field (the message lists them) or a value
-            that is not JSON.
+        ValueError: An item without ``=``, a removed field (:data:`REMOVED_MODELER_FIELDS`,
+            named as removed), an unknown field (the message lists them) or a value that is not
+            JSON.
     """
     known = {f.name for f in fields(ModelerConfig)}
     overrides: dict[str, object] = {}
@@ -335,6 +331,8 @@ def modeler_overrides(items: Sequence[str]) -> dict[str, object]:
         key, sep, text = item.partition("=")
         if not sep:
             raise ValueError(f"modeler setting {item!r} is not FIELD=VALUE")
+        if key in REMOVED_MODELER_FIELDS:
+            raise ValueError(f"modeler setting {item!r}: {removed_field_message(key)}")
         if key not in known:
             raise ValueError(
                 f"unknown ModelerConfig field {key!r}; fields: {', '.join(sorted(known))}"

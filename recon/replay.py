@@ -54,10 +54,11 @@ import numpy as np
 from tqdm import tqdm
 
 from recon.config import (
+    REMOVED_MODELER_FIELDS,
     ModelerConfig,
     add_modeler_argument,
-    is_learned_segmenter,
     modeler_overrides,
+    removed_field_message,
 )
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame, ScanFormatError
@@ -72,6 +73,7 @@ from recon.overlay import model_overlay
 from recon.plot3d import plot_model_3d
 from recon.segmentation.flow import FramePairer
 from recon.segmentation.flow import swap_red_blue as swap_flow_red_blue
+from recon.segmentation.spec import is_learned_segmenter
 from recon.tracking import LucasKanadeTracker, PointTracker
 
 if TYPE_CHECKING:  # recon.segmentation (torch) is imported only for a learned segmenter
@@ -189,14 +191,23 @@ def load_segmenter(spec: str | None):
 def modeler_settings(
     metadata: dict, seed: int | None, config: ModelerConfig | None
 ) -> tuple[int, ModelerConfig]:
-    """The seed and config: explicit values, else the recording's metadata, else defaults."""
+    """The seed and config: explicit values, else the recording's metadata, else defaults.
+
+    A recorded field that has been removed since (:data:`recon.config.REMOVED_MODELER_FIELDS`)
+    is dropped, with a warning naming it where the recording ran another value than today's
+    code runs.
+    """
     recorded = metadata.get("modeler", {}) if isinstance(metadata, dict) else {}
     if seed is None:
         seed = int(recorded.get("seed", 0))
     if config is None:
         values = recorded.get("config") or {}
+        for name in sorted(set(values) & set(REMOVED_MODELER_FIELDS)):
+            if values[name] != REMOVED_MODELER_FIELDS[name].value:
+                logger.warning("the recording ran %s=%r: %s", name, values[name],
+                               removed_field_message(name))  # fmt: skip
         known = {f.name for f in fields(ModelerConfig)}
-        unknown = sorted(set(values) - known)
+        unknown = sorted(set(values) - known - set(REMOVED_MODELER_FIELDS))
         if unknown:
             logger.warning("ignoring unknown recorded ModelerConfig fields %s", unknown)
         config = ModelerConfig(**{k: v for k, v in values.items() if k in known})

@@ -554,7 +554,10 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
         modeler=replace(default.modeler, primary_max_turn_deg=None, primary_model_vouches=False),
     )
     before = config_to_dict(config)  # the config as published before the fields existed
-    del before["render_tracking_frames"], before["modeler"]["secondary_trust_redetected"]
+    before["modeler"].update(  # ... and with the fields removed since, at their only value
+        model_reprojection_px=4.0, primary_sample_spacing_m=0.005, secondary_trust_in_view=0.0
+    )
+    del before["render_tracking_frames"]
     del before["modeler"]["secondary_trust_tolerance_px"]
     del before["modeler"]["secondary_min_reach_m"]
     del before["modeler"]["primary_max_turn_deg"], before["modeler"]["primary_model_vouches"]
@@ -563,8 +566,8 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     del before["world"]["tree"]["primary_base_height_m"]
     published = hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()[:16]
     assert config_hash(config) == published
-    redetected = replace(config, modeler=replace(config.modeler, secondary_trust_redetected=True))
-    assert config_hash(redetected) != published
+    reach = replace(config, modeler=replace(config.modeler, secondary_min_reach_m=0.03))
+    assert config_hash(reach) != published
     turn = replace(config, modeler=replace(config.modeler, primary_max_turn_deg=30.0))
     assert config_hash(turn) != published
     assert config_hash(default) not in {published, config_hash(turn)}  # a new rule: new trials
@@ -594,13 +597,15 @@ def test_trials_of_learned_masks_before_a_mask_source_setting_are_not_mixed_with
 
 
 def test_modeler_settings_from_the_command_line() -> None:
-    items = ["secondary_trust_tolerance_px=0", "secondary_trust_redetected=true"]
+    items = ["secondary_trust_tolerance_px=0", "secondary_extend_to_junction=false"]
     assert modeler_overrides(items) == {
         "secondary_trust_tolerance_px": 0,
-        "secondary_trust_redetected": True,
+        "secondary_extend_to_junction": False,
     }
     for bad, message in (
         ("bogus=1", "unknown ModelerConfig field 'bogus'"),
+        ("secondary_trust_in_view=0.5", "field 'secondary_trust_in_view' was removed"),
+        ("model_reprojection_px=4", "field 'model_reprojection_px' was removed"),
         ("secondary_trust_min", "not FIELD=VALUE"),
         ("secondary_trust_min=low", "not a JSON value"),
     ):

@@ -1,12 +1,9 @@
 """Upkeep of model secondaries across views (issue 17: rotations cost found branches).
 
-Trust with ``secondary_trust_in_view``: a frame changes it only where enough of the branch is in
-view (a well reconstructed branch swept past the image border during a rotation was deleted, seed
-24); 0, the default, counts any frame that shows two points. The refit with
-``secondary_order_from_junction``: observations ordered from the junction (a branch extended
-toward the trunk by a later view folded, seed 16). With ``secondary_trust_redetected`` (off by
-default) a frame whose detection joins a branch counts as supporting it (a branch 15 mm off after
-rotations lost its trust while each view still detected it, validation tree 10,000,035).
+Trust: any frame that shows two of a branch's points changes it, by whether its projection lands
+on the mask (the authors' rule; a detection joining the branch in that frame does not count). The
+refit with ``secondary_order_from_junction``: observations ordered from the junction (a branch
+extended toward the trunk by a later view folded, seed 16).
 ``secondary_trust_tolerance_px`` (4 px for a learned segmenter's masks): a model a few pixels
 beside a thin learned mask keeps its trust (issue 32: rotated views from pixels deleted found
 branches).
@@ -28,7 +25,6 @@ INTRINSICS = CameraIntrinsics.from_fov()
 PRIMARY = straight_tube([0.0, 0.0, 0.30], [0.0, 0.0, 0.70], 0.006)
 BRANCH = straight_tube([0.0, 0.0, 0.45], [0.03, 0.0, 0.55], 0.004)  # steep: 10 cm tall
 MARGIN_PX = ModelerConfig().image_margin_px
-IN_VIEW = ModelerConfig(secondary_trust_in_view=0.5)
 
 
 def _frame(camera_height_m: float, tubes: list) -> Frame:
@@ -58,14 +54,12 @@ def _trust_after(camera_height_m: float, config: ModelerConfig, mask_tubes=(PRIM
 
 def test_a_frame_showing_most_of_the_branch_off_the_mask_lowers_its_trust() -> None:
     assert _in_view(0.50) == 1.0
-    assert _trust_after(0.50, IN_VIEW) == -1
     assert _trust_after(0.50, ModelerConfig()) == -1
 
 
 def test_a_frame_showing_only_its_end_at_the_border_leaves_the_trust_alone() -> None:
     assert 0.05 < _in_view(0.58) < 0.5  # the branch's top fifth, at the image's bottom edge
-    assert _trust_after(0.58, IN_VIEW) == 0
-    # the default rule: any two points in view count the frame
+    # any two points in view count the frame
     assert _trust_after(0.58, ModelerConfig()) == -1
 
 
@@ -86,9 +80,7 @@ def _trust_changes_redetected_then_not(config: ModelerConfig) -> list[int]:
     return changes
 
 
-def test_a_branch_redetected_in_the_frame_keeps_its_trust_where_its_model_misses_the_mask() -> None:
-    redetected = ModelerConfig(secondary_trust_redetected=True)
-    assert _trust_changes_redetected_then_not(redetected) == [1, -1]
+def test_a_branch_redetected_in_the_frame_loses_trust_where_its_model_misses_the_mask() -> None:
     assert _trust_changes_redetected_then_not(ModelerConfig()) == [-1, -1]  # authors' rule
 
 
@@ -130,13 +122,6 @@ def test_a_set_trust_tolerance_is_kept_and_a_negative_one_refused() -> None:
     for bad in (-1.0, float("nan")):
         with pytest.raises(ValueError, match="secondary_trust_tolerance_px"):
             ModelerConfig(secondary_trust_tolerance_px=bad)
-
-
-def test_the_in_view_share_must_be_a_fraction() -> None:
-    with pytest.raises(ValueError, match="secondary_trust_in_view"):
-        ModelerConfig(secondary_trust_in_view=1.5)
-    with pytest.raises(ValueError, match="secondary_trust_in_view"):
-        ModelerConfig(secondary_trust_in_view=-0.1)
 
 
 def _refit_after_inward_extension(config: ModelerConfig) -> float:

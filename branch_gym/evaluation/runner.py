@@ -46,7 +46,8 @@ from branch_gym.evaluation.trials import (
 from branch_gym.files import write_json_atomic
 from branch_gym.scan import ScanConfig
 from recon.segmentation.onnx_network import weights_digest
-from recon.segmentation.segmenter import LEARNED_SPEC, weights_path_of
+from recon.segmentation.segmenter import weights_path_of
+from recon.segmentation.spec import is_learned_segmenter
 
 logger = logging.getLogger(__name__)
 
@@ -85,7 +86,7 @@ def check_output_folder(config: EvalConfig, out: Path) -> None:
     for policy in config.policies:
         if policy.startswith(PPO_SPEC_PREFIX):
             _check_model_file(policy, out)
-    if config.scan.segmenter.startswith(LEARNED_SPEC):
+    if is_learned_segmenter(config.scan.segmenter):
         _check_segmenter_weights(config.scan.segmenter, out)
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from branch_gym.files import PARTIAL_WRITE_GLOB, write_json_atomic
 from branch_gym.sim.tree.ground_truth import TreeGT
+from recon.config import REMOVED_MODELER_FIELDS
 from recon.metrics import TreeMetrics
 from recon.model import TreeModel
 
@@ -238,9 +239,13 @@ def config_hash(config: Any) -> str:
 
     Fields added after results were published (``HASH_NEUTRAL_DEFAULTS``, dotted paths into
     nested configs) are left out while they hold the value that reproduces the earlier
-    behaviour, so that saved trials stay valid.
+    behaviour, and ModelerConfig fields removed since (``REMOVED_MODELER_FIELDS``) count at the
+    value they always held, so that saved trials stay valid.
     """
     data = config_to_dict(config)
+    if isinstance(data.get("modeler"), dict):
+        for name, removed in REMOVED_MODELER_FIELDS.items():
+            data["modeler"].setdefault(name, removed.value)
     for path, neutral in HASH_NEUTRAL_DEFAULTS.items():
         *parents, name = path.split(".")
         section = data

@@ -24,6 +24,9 @@ from recon.model3d.primary import robust_radius_profile
 
 # Relative slack of the box test of :func:`_boxes_apart` (ours: far above rounding, ~1e-16).
 _BOX_MARGIN = 1e-6
+# A frame changes a secondary's trust when it shows at least this many of its observed points
+# (the paper's "visible branch"; the authors' code).
+_VISIBLE_POINTS = 2
 
 
 @dataclass
@@ -53,7 +56,6 @@ class _Secondary:
     model: BranchModel | None = None
     junction: np.ndarray | None = None  # (3,) primary point its ray back met (connection test)
     n_extension: int = 0  # leading model points that bridge the junction, not observed
-    redetected: bool = False  # a detection of the latest add_detections call joined it
 
 
 class SecondaryBranches:
@@ -105,8 +107,6 @@ class SecondaryBranches:
         if primary is not None and len(primary.points) >= 2:
             self._primary_axis = primary_axis(primary.points)
         created = 0
-        for branch in self._branches:
-            branch.redetected = False
         for det in detections:
             if len(det.points) < self.config.secondary_min_points:
                 continue
@@ -116,7 +116,6 @@ class SecondaryBranches:
             if target is not None:
                 self._merge_observations(target, det.points, det.radii)
                 target.detections += 1
-                target.redetected = True
                 continue
             junction = None if primary is None else self._junction(det.points, primary.points)
             if junction is None and primary is not None and frame is not None:
@@ -137,9 +136,8 @@ class SecondaryBranches:
     def update_trust(self, frame: Frame) -> None:
         """+1 for each visible branch whose projection lands on the mask, -1 otherwise; prune.
 
-        A branch is visible when at least ``secondary_trust_in_view`` of its observed points (and
-        two) project into the image. With ``secondary_trust_redetected`` a branch that a
-        detection of this frame joined (the last :meth:`add_detections`) counts as on the mask.
+        A branch is visible when two of its observed points project into the image (the paper's
+        "visible branch").
         """
         cfg = self.config
         kept = []
@@ -150,9 +148,8 @@ class SecondaryBranches:
             on_mask, visible = _mask_fraction(
                 observed, frame, cfg.image_margin_px, cfg.secondary_trust_tolerance_px or 0.0
             )
-            supported = on_mask >= 0.5 or (cfg.secondary_trust_redetected and branch.redetected)
-            if visible >= max(2, cfg.secondary_trust_in_view * len(observed)):
-                branch.trust += 1 if supported else -1
+            if visible >= _VISIBLE_POINTS:
+                branch.trust += 1 if on_mask >= 0.5 else -1
                 branch.model.trust = branch.trust
             if branch.trust >= cfg.secondary_trust_min:
                 kept.append(branch)
@@ -267,7 +264,6 @@ class SecondaryBranches:
                     ):
                         a.detections += b.detections
                         a.trust = max(a.trust, b.trust)
-                        a.redetected = a.redetected or b.redetected
                         if a.junction is None:
                             a.junction = b.junction
                         self._branches.remove(b)

@@ -21,11 +21,11 @@ from recon.segmentation.flow import DenseFlowConfig, flow_picture
 from recon.segmentation.inputs import FlowConfig, check_flow_image, make_input, make_picture_input
 from recon.segmentation.network import SUBPIXELS, SegmenterNet, subpixels_to_image
 from recon.segmentation.onnx_network import OnnxNetwork, load_onnx_network
+from recon.segmentation.spec import LEARNED_KIND, SegmenterSpec
 from recon.segmentation.weights import load_weights
 
 logger = logging.getLogger(__name__)
 
-LEARNED_SPEC = "learned"
 _WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
 # The shipped weights: package data beside this module.
 SHIPPED_WEIGHTS = _WEIGHTS_DIR / "orchard_flow.pt"
@@ -262,28 +262,29 @@ class LearnedSegmenter:
         return subpixels_to_image(subpixels > self._logit_threshold)[:h, :w]
 
 
-def weights_path_of(spec: str) -> Path:
+def weights_path_of(spec: str | SegmenterSpec) -> Path:
     """The weights file a learned segmenter spec names.
 
     Args:
-        spec: ``"learned"`` (:func:`default_weights_path`) or ``"learned:PATH"``.
+        spec: ``"learned"`` (:func:`default_weights_path`) or ``"learned:PATH"``
+            (:class:`recon.segmentation.spec.SegmenterSpec`, text or parsed).
 
     Raises:
         ValueError: Not a learned segmenter spec.
     """
-    if spec == LEARNED_SPEC:
-        return default_weights_path()
-    if spec.startswith(LEARNED_SPEC + ":") and len(spec) > len(LEARNED_SPEC) + 1:
-        return Path(spec[len(LEARNED_SPEC) + 1 :]).expanduser()
-    raise ValueError(f"segmenter spec must be 'learned' or 'learned:PATH', got {spec!r}")
+    option = SegmenterSpec.parse(spec).option
+    return default_weights_path() if option is None else Path(option).expanduser()
 
 
-def load_segmenter(spec: str = LEARNED_SPEC, runtime: str = "auto") -> LearnedSegmenter:
-    """Load a learned segmenter from a spec string.
+def load_segmenter(
+    spec: str | SegmenterSpec = LEARNED_KIND, runtime: str = "auto"
+) -> LearnedSegmenter:
+    """Load a learned segmenter from a spec.
 
     Args:
         spec: ``"learned"`` (the shipped weights, :func:`default_weights_path`) or
-            ``"learned:PATH"`` (a weights file written by :func:`recon.segmentation.save_weights`).
+            ``"learned:PATH"`` (a weights file written by :func:`recon.segmentation.save_weights`),
+            as text or a parsed :class:`recon.segmentation.spec.SegmenterSpec`.
         runtime: What runs the network (one of :data:`RUNTIMES`): ``"auto"``, ONNX Runtime where
             an ONNX export of these weights lies beside them
             (:func:`recon.segmentation.onnx_network.load_onnx_network`; the shipped weights have

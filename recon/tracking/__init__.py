@@ -12,15 +12,18 @@ the M frames of the tracking window. Three implementations:
 
 The package's public names, from where they live: the shared types :class:`Tracks` and
 :class:`PointTracker` in ``recon/tracking/tracks.py``, the trackers in ``lucas_kanade.py``,
-``recon/tracking/learned.py`` and ``recon/tracking/depth_oracle.py``.
+``recon/tracking/learned.py`` and ``recon/tracking/depth_oracle.py``; a tracker by name
+(``lk``, ``oracle``) from :func:`make_tracker` in ``recon/tracking/factory.py``.
 """
 
 from recon.tracking.depth_oracle import DepthOracleConfig, DepthOracleTracker
+from recon.tracking.factory import TRACKERS, make_tracker
 from recon.tracking.learned import LearnedTrackerAdapter, LearnedTrackFn
 from recon.tracking.lucas_kanade import LucasKanadeConfig, LucasKanadeTracker
 from recon.tracking.tracks import PointTracker, Tracks
 
 __all__ = [
+    "TRACKERS",
     "DepthOracleConfig",
     "DepthOracleTracker",
     "LearnedTrackFn",
@@ -29,4 +32,5 @@ __all__ = [
     "LucasKanadeTracker",
     "PointTracker",
     "Tracks",
+    "make_tracker",
 ]
