@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m branch_gym.demo
+	$(PY) -m agents.commands demo
 
 test: $(STAMP)
 	$(PY) -m pytest -n 2 -q

@@ -23,6 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from agents.factory import AGENTS
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.ray_backend import init_local
 from branch_gym.evaluation.runner import run_trials
@@ -51,8 +52,10 @@ def run() -> dict[str, float]:
     except ImportError:
         logger.warning("bench_ray: Ray is not installed (pip install '.[ray]'): skipped")
         return {}
-    pool = EvalConfig(POLICIES, TREES, workers=WORKERS, scan=SCAN)
-    on_ray = EvalConfig(POLICIES, TREES, workers=WORKERS, scan=SCAN, backend="ray")
+    pool = EvalConfig(POLICIES, TREES, workers=WORKERS, scan=SCAN, policy_factory=AGENTS)
+    on_ray = EvalConfig(
+        POLICIES, TREES, workers=WORKERS, scan=SCAN, backend="ray", policy_factory=AGENTS
+    )
     trials = len(pool.keys)
     total_ms, run_ms, init_s = [], [], []
     for _ in range(REPEATS):

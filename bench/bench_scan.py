@@ -11,6 +11,7 @@ import time
 
 import numpy as np
 
+from agents.factory import AGENTS
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
 
@@ -19,10 +20,10 @@ SEEDS = (0, 1, 2, 3, 4)
 
 def run() -> dict[str, float]:
     config = ScanConfig()
-    run_trial(100, "none", config)  # warm-up: process start, first world, caches
+    run_trial(100, "none", config, AGENTS)  # warm-up: process start, first world, caches
     seconds = []
     for seed in SEEDS:
         start = time.perf_counter()
-        run_trial(seed, "none", config)
+        run_trial(seed, "none", config, AGENTS)
         seconds.append(time.perf_counter() - start)
     return {"scan_s": float(np.median(seconds))}

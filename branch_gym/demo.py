@@ -17,7 +17,7 @@ It also writes a video of the orchard student scanning the first orchard tree an
 camera/scene snapshot of that tree. A few trees give a noisy table: the pages above hold the
 60-tree ones. Re-running resumes.
 
-Usage: ``python -m branch_gym.demo [--trees N] [--clean-trees N] [--out DIR] [--workers K]``
+Usage: ``python -m agents.commands demo [--trees N] [--clean-trees N] [--out DIR] [--workers K]``
 (installed: ``branch-gym-demo``).
 """
 
@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -33,13 +34,13 @@ import numpy as np
 from gymnasium.wrappers import RecordVideo
 from tqdm import tqdm
 
-from agents.factory import make_agent, spec_env_kwargs, spec_reset_options
 from branch_gym.env import BranchScanEnv
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.episodes import run_episode
 from branch_gym.evaluation.pipeline import EvalOutcome, run_evaluation
 from branch_gym.evaluation.report import format_comparison, format_table
 from branch_gym.evaluation.runner import ConfigMismatchError
+from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import World, WorldConfig
 
@@ -60,17 +61,17 @@ DEMO_ORCHARD_TREES = 2
 DEMO_CLEAN_TREES = 2
 
 
-def _video(out: Path, seed: int, policy: str, scan: ScanConfig) -> Path:
+def _video(out: Path, seed: int, policy: str, scan: ScanConfig, factory: PolicyFactory) -> Path:
     """An MP4 of one scan played by ``policy``: the camera image with the pipeline overlaid."""
-    env = BranchScanEnv(render_mode="rgb_array", scan=scan, **spec_env_kwargs(policy))
-    agent = make_agent(policy, env)
+    env = BranchScanEnv(render_mode="rgb_array", scan=scan, **factory.env_kwargs(policy))
+    agent = factory.make(policy, env)
     folder = out / "video"
     recorder = RecordVideo(
         env, str(folder), episode_trigger=lambda _: True, name_prefix=f"scan_tree{seed}",
         disable_logger=True,
     )  # fmt: skip
     try:
-        run_episode(agent, recorder, seed, policy, options=spec_reset_options(policy))
+        run_episode(agent, recorder, seed, policy, options=factory.reset_options(policy))
     finally:
         recorder.close()
     return next(folder.glob(f"scan_tree{seed}*.mp4"))
@@ -120,22 +121,32 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Run the demo (``make demo``, ``branch-gym-demo``)."""
+def main(
+    argv: list[str] | None,
+    factory: PolicyFactory,
+    paper_column: Callable[[str], dict | None],
+) -> int:
+    """Run the demo; returns the exit status (``agents.commands.demo``: ``make demo``,
+    ``branch-gym-demo``, which hand in the policies and the paper's columns)."""
     args = build_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    orchard = EvalConfig(ORCHARD_POLICIES, args.trees, workers=args.workers, scan=ORCHARD_SCAN)
-    clean = EvalConfig(CLEAN_POLICIES, args.clean_trees, workers=args.workers)
+    orchard = EvalConfig(
+        ORCHARD_POLICIES,
+        args.trees,
+        workers=args.workers,
+        scan=ORCHARD_SCAN,
+        policy_factory=factory,
+    )
+    clean = EvalConfig(
+        CLEAN_POLICIES, args.clean_trees, workers=args.workers, policy_factory=factory
+    )
     orchard_outcome = _evaluate("Orchard from pixels", orchard, args.out / "orchard")
     print(format_table(orchard_outcome.summary))
     clean_outcome = _evaluate("Clean world, next to the paper", clean, args.out / "clean")
-    print(format_comparison(clean_outcome.summary))
+    print(format_comparison(clean_outcome.summary, paper_column))
     snapshot = _snapshot(args.out / "orchard", orchard.seed, ORCHARD_SCAN.world)
     print(f"\nRecording {ORCHARD_STUDENT} scanning orchard tree {orchard.seed} ...")
-    video = _video(args.out / "orchard", orchard.seed, ORCHARD_STUDENT, ORCHARD_SCAN)
+    video = _video(args.out / "orchard", orchard.seed, ORCHARD_STUDENT, ORCHARD_SCAN, factory)
     files = [*orchard_outcome.files, *clean_outcome.files, snapshot, video]
     print("\nwrote:", *[str(p) for p in files], sep="\n  ")
-
-
-if __name__ == "__main__":
-    main()
+    return 0

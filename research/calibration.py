@@ -43,10 +43,11 @@ from typing import Any
 
 import numpy as np
 
-from agents.ppo import load_model, model_env_id, resolve_model_path
+from agents.ppo import resolve_model_path
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG, PRICE_KEY
 from branch_gym.env.versions import env_version
 from branch_gym.files import write_json_atomic
+from branch_gym.training.model_files import load_model, model_env_id
 from branch_gym.training.train import apply_first_action_logit
 
 CALIBRATION_SUFFIX = ".calibration.json"
@@ -84,7 +85,7 @@ def shift_hold_logit(
 
     Raises:
         FileNotFoundError: ``source`` does not exist.
-        agents.ppo.ModelFileError: ``source`` is not a readable model.
+        branch_gym.training.model_files.ModelFileError: ``source`` is not a readable model.
         ValueError: a non-finite shift, a continuous-action model, or ``out`` equal to
             ``source``; with ``top_price_shift``, a model without the price input.
     """

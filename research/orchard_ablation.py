@@ -28,6 +28,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from agents.factory import AGENTS
+from agents.paper import paper_column
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.report import format_comparison
@@ -77,13 +79,13 @@ def main(argv: list[str] | None = None) -> None:
         scan = scan.replace(
             modeler=dataclasses.replace(scan.modeler, **modeler_overrides(args.modeler))
         )
-    config = EvalConfig(POLICIES, args.trees, args.seed, args.workers, scan)
+    config = EvalConfig(POLICIES, args.trees, args.seed, args.workers, scan, policy_factory=AGENTS)
     bar = tqdm(total=len(config.keys), unit="trial")
     outcome = run_evaluation(
         config, args.out, [], lambda total, saved: bar.update(saved), lambda key: bar.update(1)
     )
     bar.close()
-    print(format_comparison(outcome.summary))
+    print(format_comparison(outcome.summary, paper_column))
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 import recon.modeler as modeler_module
+from agents.factory import AGENTS
 from branch_gym.env.config import tree_config
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
@@ -59,7 +60,7 @@ def trace(seed: int, policy: str, scan: ScanConfig) -> list[dict]:
 
     modeler_module.Modeler._iterate = instrumented
     try:
-        run_trial(seed, policy, scan)
+        run_trial(seed, policy, scan, AGENTS)
     finally:
         modeler_module.Modeler._iterate = original
     return kept

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from agents.factory import AGENTS
 from agents.ppo import PPO_SPEC_PREFIX, PRICE_SEPARATOR
 from branch_gym.env.reward import RewardConfig
 from branch_gym.evaluation.config import EvalConfig
@@ -137,6 +138,7 @@ def select_model(
         seed=seeds[0],
         workers=workers,
         scan=ScanConfig(),  # LK tracking, clean masks: what eval.py's table uses
+        policy_factory=AGENTS,
     )
     with tqdm(total=len(config.keys), unit="scan", disable=not progress) as bar:
         outcome = run_evaluation(

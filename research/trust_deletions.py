@@ -23,6 +23,7 @@ import argparse
 
 import numpy as np
 
+from agents.factory import AGENTS
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import World, WorldConfig
@@ -86,7 +87,7 @@ def trace(seed: int, policy: str, branch: int, radius_m: float, segmenter: str) 
     )
     SecondaryBranches.update_trust = traced
     try:
-        result = run_trial(seed, policy, scan)
+        result = run_trial(seed, policy, scan, AGENTS)
     finally:
         SecondaryBranches.update_trust = original
     row = result.branches[branch]

@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-from branch_gym.evaluation.cli import main as eval_main
+from agents.commands import evaluate as eval_main
 from recon.frame import Frame
 from recon.model3d import secondary
 from recon.segmentation.segmenter import LearnedSegmenter, subpixels_to_image

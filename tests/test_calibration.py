@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agents.ppo import load_model, resolve_model_path
+from agents.ppo import resolve_model_path
+from branch_gym.training.model_files import load_model
 from research.calibration import calibration_path, main, shift_hold_logit
 
 

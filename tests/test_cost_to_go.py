@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 import branch_gym  # noqa: F401  (registers the env ids)
-from agents.privileged import PrivilegedAgent
 from branch_gym.env.layout import VECTOR_KEY, VectorField
 from branch_gym.env.reward import RewardConfig
+from branch_gym.privileged import PrivilegedAgent
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.imitation import ImitationConfig, RoundData, fit_student, new_student

@@ -11,6 +11,7 @@ import pytest
 
 import branch_gym
 from agents.baselines import PeriodicAgent
+from agents.factory import AGENTS
 from branch_gym.env import BranchScanEnv
 from branch_gym.env.layout import VECTOR_SIZE
 from branch_gym.evaluation.episodes import run_trial
@@ -43,7 +44,7 @@ _COMPARED = (
 )
 def test_periodic_agent_scans_alike_in_every_action_type(env_id: str, tracker: str) -> None:
     config = ScanConfig(tracker=tracker, end_height_m=0.45)
-    reference = run_trial(7, "periodic:22.5:1.5", config).to_row()  # continuous env
+    reference = run_trial(7, "periodic:22.5:1.5", config, AGENTS).to_row()  # continuous env
     env = gymnasium.make(env_id, scan=config)
     agent = PeriodicAgent.for_env(env, 22.5, 1.5)
     obs, _ = env.reset(seed=7)

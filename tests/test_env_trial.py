@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from agents.baselines import PeriodicAgent
+from agents.factory import AGENTS
 from branch_gym.evaluation.episodes import run_scan, run_trial
 from branch_gym.scan import ScanConfig
 
@@ -13,7 +14,7 @@ SHORT = ScanConfig(end_height_m=0.42)
 
 @pytest.mark.slow
 def test_a_trial_from_a_spec_equals_a_scan_with_the_agent() -> None:
-    via_spec = run_trial(4, "periodic:22.5:2.5", SHORT).to_row()
+    via_spec = run_trial(4, "periodic:22.5:2.5", SHORT, AGENTS).to_row()
     via_agent = run_scan(4, PeriodicAgent(22.5, 2.5), SHORT, policy="periodic:22.5:2.5").to_row()
     assert via_spec["rotations"] >= 1
     for key in (
@@ -33,4 +34,4 @@ def test_a_trial_from_a_spec_equals_a_scan_with_the_agent() -> None:
 @pytest.mark.parametrize("spec", ["spin:3", "periodic:x:1", "none:1", ""])
 def test_unknown_policy_spec_raises_naming_the_forms(spec: str) -> None:
     with pytest.raises(ValueError, match="periodic:ANGLE_DEG:FREQ"):
-        run_trial(0, spec, SHORT)
+        run_trial(0, spec, SHORT, AGENTS)

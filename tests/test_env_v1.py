@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 import branch_gym
+from agents.factory import AGENTS
 from branch_gym.env.layout import COVERAGE_KEY, PRICE_KEY, flatten_observation
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
@@ -94,7 +95,9 @@ def test_a_short_training_run_writes_a_model_that_plays_at_a_given_price(
     ]  # fmt: skip
     assert cli.main(argv) == 0
     model = out / "final_model.zip"
-    result = run_trial(0, f"ppo:{model}@80", ScanConfig(tracker="oracle", end_height_m=0.33))
+    result = run_trial(
+        0, f"ppo:{model}@80", ScanConfig(tracker="oracle", end_height_m=0.33), AGENTS
+    )
     assert result.n_iterations > 0 and result.policy == f"ppo:{model}@80"
 
 
@@ -109,7 +112,8 @@ def test_the_shipped_priced_policy_rotates_more_readily_when_branches_are_dear()
     """
     import torch
 
-    from agents.ppo import load_model, resolve_model_path
+    from agents.ppo import resolve_model_path
+    from branch_gym.training.model_files import load_model
 
     env = gymnasium.make(
         branch_gym.DISCRETE_ENV_ID_V1, tracker="oracle", render_tracking_frames=False,
@@ -190,7 +194,8 @@ def test_the_shipped_v2_student_wants_to_rotate_when_a_branch_points_at_the_came
     the lens (at 0.40 m) and along the same primary alone."""
     import torch
 
-    from agents.ppo import load_model, resolve_model_path
+    from agents.ppo import resolve_model_path
+    from branch_gym.training.model_files import load_model
 
     model = load_model(resolve_model_path("ppo_dagger_v2"))
 

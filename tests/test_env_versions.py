@@ -11,22 +11,21 @@ import pytest
 
 import branch_gym
 from agents.factory import make_agent, spec_env_kwargs
-from agents.ppo import (
-    ENV_ID_ATTRIBUTE,
-    ModelFileError,
-    env_id_of_spaces,
-    load_model,
-    resolve_model_path,
-    saved_env_id,
-    shipped_models,
-    version_spaces,
-)
+from agents.ppo import resolve_model_path, shipped_models
 from branch_gym.env import BranchScanEnv
 from branch_gym.env.versions import (
     ENV_VERSIONS,
     env_version,
     markdown_table,
     version_history,
+)
+from branch_gym.training.model_files import (
+    ENV_ID_ATTRIBUTE,
+    ModelFileError,
+    env_id_of_spaces,
+    load_model,
+    saved_env_id,
+    version_spaces,
 )
 
 ROOT = Path(__file__).resolve().parents[1]

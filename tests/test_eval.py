@@ -10,6 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from agents.factory import AGENTS
+from agents.paper import paper_column
 from branch_gym.control import FollowControllerConfig
 from branch_gym.env.reward import RewardConfig
 from branch_gym.evaluation.config import EvalConfig
@@ -229,7 +231,7 @@ def test_json_scalar_and_policy_slug() -> None:
 
 # ----------------------------------------------------------------------------- aggregation
 def test_summary_values_and_shape_on_hand_made_trials() -> None:
-    config = EvalConfig(POLICIES, trees=2)
+    config = EvalConfig(POLICIES, trees=2, policy_factory=AGENTS)
     summary = build_summary(config, _records())
     assert list(summary["policies"]) == list(POLICIES)
     assert summary["config"]["seeds"] == [0, 1] and "workers" not in summary["config"]
@@ -265,8 +267,13 @@ def test_intervals_do_not_depend_on_the_other_policies_of_the_run() -> None:
         for policy, counts in missed.items()
         for seed, count in enumerate(counts)
     ]
-    alone = build_summary(EvalConfig(("none", "periodic:22.5:1.5"), trees=8), records)
-    more = build_summary(EvalConfig(("privileged", "none", "periodic:22.5:1.5"), trees=8), records)
+    alone = build_summary(
+        EvalConfig(("none", "periodic:22.5:1.5"), trees=8, policy_factory=AGENTS), records
+    )
+    more = build_summary(
+        EvalConfig(("privileged", "none", "periodic:22.5:1.5"), trees=8, policy_factory=AGENTS),
+        records,
+    )
     for policy in ("none", "periodic:22.5:1.5"):
         for key in ("missed_pct_ci", "scan_time_s_ci"):
             assert alone["policies"][policy][key] == more["policies"][policy][key]
@@ -279,7 +286,7 @@ def test_intervals_do_not_depend_on_the_other_policies_of_the_run() -> None:
 
 
 def test_table_layout_and_formatting() -> None:
-    summary = build_summary(EvalConfig(POLICIES, trees=2), _records())
+    summary = build_summary(EvalConfig(POLICIES, trees=2, policy_factory=AGENTS), _records())
     lines = format_table(summary).splitlines()
     assert [c.strip() for c in lines[0].strip("|").split("|")] == ["", *POLICIES]
     labels = [line.strip("|").split("|")[0].strip() for line in lines[2:]]
@@ -296,8 +303,8 @@ def test_table_layout_and_formatting() -> None:
 def test_comparison_shows_the_paper_values_where_the_paper_has_the_column() -> None:
     records = [*_records(), _record("periodic:30:1", 0, _metrics([1.0], [], (1, 1, 0, 0)))]
     records += [_record("periodic:30:1", 1, _metrics([1.0], [], (1, 1, 0, 0)))]
-    config = EvalConfig((*POLICIES, "periodic:30:1"), trees=2)
-    rows = format_comparison(build_summary(config, records)).splitlines()
+    config = EvalConfig((*POLICIES, "periodic:30:1"), trees=2, policy_factory=AGENTS)
+    rows = format_comparison(build_summary(config, records), paper_column).splitlines()
     header = [c.strip() for c in rows[0].strip("|").split("|")]
     assert header == ["", "none", "paper", "periodic:22.5:1.5", "paper", "periodic:30:1", "paper"]
     pb = [c.strip() for c in rows[2].strip("|").split("|")]
@@ -307,7 +314,7 @@ def test_comparison_shows_the_paper_values_where_the_paper_has_the_column() -> N
 
 
 def test_report_files_on_hand_made_trials(tmp_path: Path) -> None:
-    config = EvalConfig(POLICIES, trees=2)
+    config = EvalConfig(POLICIES, trees=2, policy_factory=AGENTS)
     records = _records()
     summary = write_report(tmp_path, config, records)
     assert json.loads((tmp_path / "summary.json").read_text()) == json.loads(json.dumps(summary))
@@ -317,7 +324,7 @@ def test_report_files_on_hand_made_trials(tmp_path: Path) -> None:
     lines = (tmp_path / "trials.csv").read_text().splitlines()
     assert len(lines) == 5 and lines[0].startswith("seed,policy,failure,")
     assert lines[2].startswith("1,none,singularity,")
-    files = write_figures(tmp_path, summary, records, [1])
+    files = write_figures(tmp_path, summary, records, [1], AGENTS)
     assert [f.name for f in files] == ["missed_vs_scan_time.png", "tree_1.png"]
     assert all(f.read_bytes()[:4] == b"\x89PNG" for f in files)
 
@@ -325,9 +332,9 @@ def test_report_files_on_hand_made_trials(tmp_path: Path) -> None:
 # ----------------------------------------------------------------------------- validation
 def test_unknown_policy_is_refused_before_any_work(tmp_path: Path, capsys) -> None:
     with pytest.raises(ValueError, match="unknown policy spec 'spin:3'"):
-        EvalConfig(("none", "spin:3"), trees=1)
+        EvalConfig(("none", "spin:3"), trees=1, policy_factory=AGENTS)
     with pytest.raises(ValueError, match="repeated"):
-        EvalConfig(("none", "none"), trees=1)
+        EvalConfig(("none", "none"), trees=1, policy_factory=AGENTS)
     out = tmp_path / "out"
     with pytest.raises(SystemExit) as exit_info:
         eval_cli.main(["--policies", "none", "periodic:22.5", "--trees", "1", "--out", str(out)])
@@ -344,14 +351,18 @@ def test_plot_seed_outside_the_run_is_refused(tmp_path: Path, capsys) -> None:
 
 
 def test_output_folder_of_another_config_is_refused(tmp_path: Path) -> None:
-    check_output_folder(EvalConfig(POLICIES, trees=1), tmp_path)
-    check_output_folder(EvalConfig(POLICIES[:1], trees=3, workers=2), tmp_path)  # same scan
-    faster = EvalConfig(POLICIES, trees=1, scan=ScanConfig(speed_mps=0.05))
+    check_output_folder(EvalConfig(POLICIES, trees=1, policy_factory=AGENTS), tmp_path)
+    check_output_folder(
+        EvalConfig(POLICIES[:1], trees=3, workers=2, policy_factory=AGENTS), tmp_path
+    )  # same scan
+    faster = EvalConfig(POLICIES, trees=1, scan=ScanConfig(speed_mps=0.05), policy_factory=AGENTS)
     with pytest.raises(ConfigMismatchError, match=r"different scan configuration.*speed_mps"):
         check_output_folder(faster, tmp_path)
     oracle = ScanConfig(tracker="oracle", controller=FollowControllerConfig(k_u=2.0))
     with pytest.raises(ConfigMismatchError) as error:
-        check_output_folder(EvalConfig(POLICIES, trees=1, scan=oracle), tmp_path)
+        check_output_folder(
+            EvalConfig(POLICIES, trees=1, scan=oracle, policy_factory=AGENTS), tmp_path
+        )
     assert "controller.k_u: 1.0 -> 2.0, tracker: 'lk' -> 'oracle')" in str(error.value)
 
 
@@ -359,21 +370,25 @@ def test_trials_of_a_model_file_changed_in_place_are_refused(tmp_path: Path) -> 
     # Retraining into the same models/NAME.zip must not reuse the old model's saved trials.
     model = tmp_path / "model.zip"
     model.write_bytes(b"first model")
-    config = EvalConfig(("none", f"ppo:{model}"), trees=1)
+    config = EvalConfig(("none", f"ppo:{model}"), trees=1, policy_factory=AGENTS)
     out = tmp_path / "out"
     check_output_folder(config, out)
     check_output_folder(config, out)  # unchanged: fine
     model.write_bytes(b"retrained model")
     with pytest.raises(ConfigMismatchError, match=r"another model file.*delete .*ppo_"):
         check_output_folder(config, out)
-    check_output_folder(EvalConfig(("none",), trees=1), out)  # other policies are unaffected
+    check_output_folder(
+        EvalConfig(("none",), trees=1, policy_factory=AGENTS), out
+    )  # other policies are unaffected
 
 
 def test_trials_of_other_segmenter_weights_are_refused(tmp_path: Path) -> None:
     # "learned" names the shipped weights, not which ones: a retrained file must not mix in.
     weights = tmp_path / "seg.pt"
     weights.write_bytes(b"first weights")
-    config = EvalConfig(("none",), trees=1, scan=ScanConfig(segmenter=f"learned:{weights}"))
+    config = EvalConfig(
+        ("none",), trees=1, scan=ScanConfig(segmenter=f"learned:{weights}"), policy_factory=AGENTS
+    )
     out = tmp_path / "out"
     check_output_folder(config, out)
     check_output_folder(config, out)  # unchanged: fine
@@ -383,7 +398,7 @@ def test_trials_of_other_segmenter_weights_are_refused(tmp_path: Path) -> None:
 
 
 def test_trial_file_of_another_config_is_refused(tmp_path: Path) -> None:
-    config = EvalConfig(("none",), trees=2)
+    config = EvalConfig(("none",), trees=2, policy_factory=AGENTS)
     for seed in (0, 1):
         record = _record("none", seed, _metrics([1.0], [], (1, 1, 0, 0)))
         record.config_hash = config.scan_hash if seed == 0 else "0123456789abcdef"
@@ -586,7 +601,7 @@ def test_trials_of_learned_masks_before_a_mask_source_setting_are_not_mixed_with
     from dataclasses import replace
 
     def scan_hash(scan: ScanConfig) -> str:
-        return EvalConfig(("none",), 1, 0, 1, scan).scan_hash
+        return EvalConfig(("none",), 1, 0, 1, scan, policy_factory=AGENTS).scan_hash
 
     exact = ModelerConfig(**{field_name: 0.0})
     labels = ScanConfig()
@@ -614,7 +629,7 @@ def test_modeler_settings_from_the_command_line() -> None:
 
 
 def test_eval_cli_refuses_a_bad_modeler_setting(tmp_path: Path, capsys) -> None:
-    from branch_gym.evaluation.cli import main
+    from agents.commands import evaluate as main
 
     argv = ["--policies", "none", "--trees", "1", "--out", str(tmp_path / "out")]
     with pytest.raises(SystemExit) as exit_info:

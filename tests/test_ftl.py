@@ -10,8 +10,8 @@ import pytest
 
 from agents.factory import check_spec
 from agents.ftl import FtlAgent, FtlConfig, parse_ftl_spec, pointing_angles_deg, stage_target_deg
+from agents.paper import PAPER_TABLE_I, paper_column
 from branch_gym.env.layout import VECTOR_SIZE, VectorField
-from branch_gym.evaluation.paper import PAPER_TABLE_I, paper_column
 from recon.camera import CameraIntrinsics
 from recon.model import BranchModel, TreeModel
 

@@ -7,13 +7,14 @@ import numpy as np
 import pytest
 
 import branch_gym  # noqa: F401  (registers the env ids)
-from agents.ppo import load_model, resolve_model_path
-from agents.privileged import PrivilegedAgent
+from agents.ppo import resolve_model_path
 from branch_gym.env.layout import PRICE_KEY
 from branch_gym.evaluation.episodes import run_episode
+from branch_gym.privileged import PrivilegedAgent
 from branch_gym.training.imitation.data import RoundData
 from branch_gym.training.imitation.fit import action_probabilities
 from branch_gym.training.imitation.labels import LabellingAgent
+from branch_gym.training.model_files import load_model
 
 # Shipped price-conditioned students: the env id they act in and the world they were trained in.
 PRICED_POLICIES = {

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import branch_gym  # noqa: F401  (registers the env ids)
-from agents.privileged import PrivilegedAgent, choose_angle_deg
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG
+from branch_gym.privileged import PrivilegedAgent, choose_angle_deg
 
 GOOD_DEG = 45.0
 

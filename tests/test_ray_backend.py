@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from agents.factory import AGENTS
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.ray_backend import INSTALL_HINT, RayUnavailableError
@@ -71,11 +72,13 @@ def _trial_files(out: Path) -> dict[str, dict]:
 # ----------------------------------------------------------------------------- without Ray
 def test_backend_and_address_are_validated() -> None:
     with pytest.raises(ValueError, match="backend"):
-        EvalConfig(POLICIES, 1, backend="dask")
+        EvalConfig(POLICIES, 1, backend="dask", policy_factory=AGENTS)
     with pytest.raises(ValueError, match="ray backend"):
-        EvalConfig(POLICIES, 1, address="auto")
-    base = EvalConfig(POLICIES, 2, scan=SCAN)
-    ray = EvalConfig(POLICIES, 2, scan=SCAN, backend="ray", address="auto", workers=8)
+        EvalConfig(POLICIES, 1, address="auto", policy_factory=AGENTS)
+    base = EvalConfig(POLICIES, 2, scan=SCAN, policy_factory=AGENTS)
+    ray = EvalConfig(
+        POLICIES, 2, scan=SCAN, backend="ray", address="auto", workers=8, policy_factory=AGENTS
+    )
     # The backend, like the worker count, changes neither the results nor the folder's hash.
     assert ray.scan_hash == base.scan_hash and ray.to_json_dict() == base.to_json_dict()
     with pytest.raises(SystemExit):
@@ -84,7 +87,7 @@ def test_backend_and_address_are_validated() -> None:
 
 def test_missing_ray_is_a_clear_error(tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` now raises ImportError
-    config = EvalConfig(POLICIES, 1, scan=SCAN, backend="ray")
+    config = EvalConfig(POLICIES, 1, scan=SCAN, backend="ray", policy_factory=AGENTS)
     with pytest.raises(RayUnavailableError, match=r"pip install '\.\[ray\]'"):
         run_trials(config, tmp_path, config.keys)
     out = tmp_path / "run"
@@ -111,13 +114,13 @@ def test_ray_backend_matches_the_pool_and_resumes_its_folder(tmp_path: Path, cap
     assert _trial_files(ray) == pool_files
     for name in ("summary.json", "table.md"):  # trials.csv holds the wall-clock columns
         assert (ray / name).read_bytes() == (pool / name).read_bytes(), name
-    records = load_records(EvalConfig(POLICIES, 2, scan=SCAN), ray)
+    records = load_records(EvalConfig(POLICIES, 2, scan=SCAN, policy_factory=AGENTS), ray)
     assert [r.rotations for r in records] == [0, 0, 1, 1]
 
     # The pool's folder resumes with Ray (in a Ray session this process started: used as is).
     for key in (("none", 1), ("periodic:22.5:1.5", 0)):
         trial_path(pool, *key).unlink()
-    config = EvalConfig(POLICIES, 2, workers=2, scan=SCAN, backend="ray")
+    config = EvalConfig(POLICIES, 2, workers=2, scan=SCAN, backend="ray", policy_factory=AGENTS)
     finished = []
     with ray_session(None, 2) as ray_module:
         outcome = run_evaluation(config, pool, on_done=finished.append)

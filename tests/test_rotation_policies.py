@@ -7,8 +7,8 @@ import pytest
 
 from agents.baselines import NoRotationAgent, PeriodicAgent, parse_periodic_spec
 from agents.factory import check_spec
-from agents.protocol import Agent
 from branch_gym.env.layout import THETA_MAX_DEG, VECTOR_SIZE, VectorField
+from branch_gym.policy import Policy
 
 
 def _obs(angle_deg: float, travel_fov: float, started: bool = True) -> np.ndarray:
@@ -40,7 +40,7 @@ def test_none_never_rotates_and_both_satisfy_the_agent_protocol() -> None:
     agent = NoRotationAgent()
     action, _ = agent.predict(_obs(0.0, 10.0))
     assert float(action[0]) == 0.0
-    assert isinstance(agent, Agent) and isinstance(PeriodicAgent(45, 2.5), Agent)
+    assert isinstance(agent, Policy) and isinstance(PeriodicAgent(45, 2.5), Policy)
 
 
 def test_periodic_specs_parse() -> None:

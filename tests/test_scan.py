@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from agents.factory import AGENTS
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig, ScanSession
 from branch_gym.scoring import score_scan
@@ -70,8 +71,8 @@ def test_rotation_costs_time_and_returns_to_the_branch(session: ScanSession) -> 
 
 @pytest.mark.slow
 def test_same_seed_same_scan() -> None:
-    a = run_trial(5, "periodic:45:2.5", SHORT).to_row()
-    b = run_trial(5, "periodic:45:2.5", SHORT).to_row()
+    a = run_trial(5, "periodic:45:2.5", SHORT, AGENTS).to_row()
+    b = run_trial(5, "periodic:45:2.5", SHORT, AGENTS).to_row()
     for key in ("scan_time_s", "rotations", "n_iterations", "pb_residual_mean_m", "n_matched"):
         assert a[key] == b[key]
 

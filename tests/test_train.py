@@ -12,15 +12,9 @@ import pytest
 from gymnasium import spaces
 
 import branch_gym
-from agents.factory import make_agent
-from agents.ppo import (
-    ModelFileError,
-    PolicyAgent,
-    check_ppo_spec,
-    flatten_observation,
-    load_model,
-    load_policy,
-)
+from agents.factory import AGENTS, make_agent
+from agents.ppo import check_ppo_spec, load_policy
+from branch_gym.env.layout import flatten_observation
 from branch_gym.env.reward import RewardConfig
 from branch_gym.evaluation.episodes import run_episode, run_trial
 from branch_gym.scan import ScanConfig
@@ -34,6 +28,7 @@ from branch_gym.training.envs import (
     FLAT_POLICY,
     policy_class,
 )
+from branch_gym.training.model_files import ModelFileError, PolicyAgent, load_model
 from branch_gym.training.paths import RunPaths
 from branch_gym.training.seeds import (
     EVAL_SEED_BASE,
@@ -325,7 +320,7 @@ def check_loaded_model_acts(paths: RunPaths) -> None:
     actions, _ = agent.predict(batch, episode_start=np.array([True, False]))
     assert actions.shape == (2, 1) and np.allclose(actions[0], action)
     # eval.py's path: the "ppo:PATH" spec plays a whole scan.
-    result = run_trial(0, f"ppo:{paths.final_model}", ScanConfig(**SHORT))
+    result = run_trial(0, f"ppo:{paths.final_model}", ScanConfig(**SHORT), AGENTS)
     assert result.policy == f"ppo:{paths.final_model}" and result.n_iterations > 0
 
 

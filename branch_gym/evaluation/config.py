@@ -6,8 +6,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from agents.factory import check_spec
 from branch_gym.evaluation.trials import config_hash, config_to_dict, policy_slug
+from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
 
 TrialKey = tuple[str, int]  # (policy spec, tree seed)
@@ -23,7 +23,7 @@ class EvalConfig:
     """One evaluation: every policy on trees ``seed .. seed + trees - 1``.
 
     Attributes:
-        policies: Policy specs (:mod:`agents.factory`), in table order.
+        policies: Policy specs, in table order.
         trees: Number of trees (tree seeds) per policy.
         seed: First tree seed.
         workers: Trials run at once: worker processes of the pool backend (1 runs the trials
@@ -36,6 +36,9 @@ class EvalConfig:
         record_dir: Record every trial run (not those loaded from saved trials) as a scan folder
             ``record_dir/<policy-slug>/seed_<SEED>`` (JPEG frames, ``docs/replay.md``). Does
             not change the results. Pool backend only.
+        policy_factory: What reads the specs (keyword only): ``agents.factory.AGENTS``, handed
+            in by the command that composes the evaluation (the gym does not import
+            ``agents``).
     """
 
     policies: tuple[str, ...]
@@ -46,10 +49,11 @@ class EvalConfig:
     backend: str = "pool"
     address: str | None = None
     record_dir: Path | None = None
+    policy_factory: PolicyFactory = field(kw_only=True, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "policies", tuple(self.policies))
-        validate_policies(self.policies)
+        validate_policies(self.policies, self.policy_factory)
         if self.trees < 1:
             raise ValueError(f"trees must be >= 1, got {self.trees}")
         if self.seed < 0:
@@ -90,7 +94,7 @@ class EvalConfig:
         }
 
 
-def validate_policies(policies: Sequence[str]) -> None:
+def validate_policies(policies: Sequence[str], factory: PolicyFactory) -> None:
     """Check every spec before any work.
 
     Raises:
@@ -101,7 +105,7 @@ def validate_policies(policies: Sequence[str]) -> None:
         raise ValueError("at least one policy is needed")
     slugs: dict[str, str] = {}
     for policy in policies:
-        check_spec(policy)
+        factory.check(policy)
         slug = policy_slug(policy)
         if slug in slugs:
             raise ValueError(

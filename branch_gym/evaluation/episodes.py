@@ -4,13 +4,14 @@ Like stable-baselines3's ``evaluate_policy``, :func:`evaluate_policy` plays one 
 episode per tree and is what every evaluation uses: ``eval.py`` (through
 :func:`run_trial`), held-out evaluation during training, the demo and the Ray backend.
 
-    from agents.factory import make_agent
     from branch_gym.env import BranchScanEnv
     from branch_gym.evaluation.episodes import evaluate_policy
 
     env = BranchScanEnv()
     episodes = evaluate_policy(make_agent("periodic:22.5:1.5", env), env, tree_seeds=range(5))
     print([e.result.metrics.missed_pct for e in episodes])
+
+(``make_agent`` is ``agents.factory.make_agent``: the policies live in the package above the gym.)
 """
 
 from __future__ import annotations
@@ -21,9 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agents.factory import make_agent, spec_env_kwargs, spec_reset_options
-from agents.protocol import Agent
 from branch_gym.env.scan_env import BranchScanEnv
+from branch_gym.policy import Policy, PolicyFactory
 from branch_gym.recording import recording
 from branch_gym.scan import ScanConfig
 from branch_gym.scoring import ScanResult
@@ -66,7 +66,7 @@ class Episode:
 
 
 def run_episode(
-    agent: Agent,
+    agent: Policy,
     env: Any,
     seed: int,
     policy: str = "",
@@ -76,7 +76,7 @@ def run_episode(
     """Play one episode of ``env`` on the tree of ``seed`` with ``agent``.
 
     Args:
-        agent: Anything with SB3's ``predict`` (:class:`agents.protocol.Agent`).
+        agent: Anything with SB3's ``predict`` (:class:`branch_gym.policy.Policy`).
         env: A single (not vectorised) ``BranchScan`` env, possibly wrapped (e.g. RecordVideo).
         seed: The tree seed passed to ``reset``.
         policy: Name recorded in the result (e.g. the spec).
@@ -106,14 +106,18 @@ def run_episode(
 
 
 def evaluate_policy(
-    agent: Agent, env: Any, tree_seeds: Iterable[int], policy: str = ""
+    agent: Policy, env: Any, tree_seeds: Iterable[int], policy: str = ""
 ) -> list[Episode]:
     """One deterministic episode per tree seed, in order (see :func:`run_episode`)."""
     return [run_episode(agent, env, seed, policy) for seed in tree_seeds]
 
 
 def run_trial(
-    seed: int, policy: str, scan: ScanConfig, record: Recording | None = None
+    seed: int,
+    policy: str,
+    scan: ScanConfig,
+    factory: PolicyFactory,
+    record: Recording | None = None,
 ) -> ScanResult:
     """One evaluation trial: the agent of a policy spec scans the tree of ``seed``.
 
@@ -123,30 +127,32 @@ def run_trial(
 
     Args:
         seed: Tree seed.
-        policy: Policy spec (:mod:`agents.factory`).
+        policy: Policy spec.
         scan: Scan settings.
+        factory: Reads the spec (``agents.factory.AGENTS``).
         record: Also write the scan's frames, ground truth and metadata as a scan folder.
 
     Raises:
-        ValueError, FileNotFoundError: a bad spec or model file (see
-            :func:`agents.factory.make_agent`).
+        ValueError, FileNotFoundError: a bad spec or model file.
     """
-    env = BranchScanEnv(scan=scan, **spec_env_kwargs(policy))
+    env = BranchScanEnv(scan=scan, **factory.env_kwargs(policy))
     try:
-        agent = make_agent(policy, env)
+        agent = factory.make(policy, env)
         recorder = nullcontext() if record is None else recording(
             env.session, record.out_dir, seed, policy, record.image_format,
             record.jpeg_quality, record.overwrite,
         )  # fmt: skip
         with recorder:
-            return run_episode(agent, env, seed, policy, options=spec_reset_options(policy)).result
+            return run_episode(
+                agent, env, seed, policy, options=factory.reset_options(policy)
+            ).result
     finally:
         env.close()
 
 
 def run_scan(
     seed: int,
-    agent: Agent,
+    agent: Policy,
     config: ScanConfig | None = None,
     action_type: str = "continuous",
     policy: str = "",
@@ -156,7 +162,7 @@ def run_scan(
     Args:
         seed: Tree seed (and the seed of every random draw of the scan).
         agent: The decision maker, built for an env of ``action_type`` (e.g. with
-            ``PeriodicAgent(22.5, 1.5)`` or :func:`agents.factory.make_agent`).
+            ``agents.baselines.PeriodicAgent(22.5, 1.5)`` or ``agents.factory.make_agent``).
         config: Scan settings.
         action_type: "continuous", "discrete" or "trigger": the env the agent acts in.
         policy: Name recorded in the result.

@@ -109,7 +109,7 @@ def run_evaluation(
         )
     summary = write_report(out, config, records)
     files = [out / name for name in ("summary.json", "table.md", "trials.csv", "branches.csv")]
-    files += write_figures(out, summary, records, plot_seeds)
+    files += write_figures(out, summary, records, plot_seeds, config.policy_factory)
     return EvalOutcome(summary, records, computed, files, other_code)
 
 

@@ -16,9 +16,9 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d import Axes3D  # noqa: F401  (importing it registers "3d")
 
-from agents.ppo import PPO_SPEC_PREFIX, PRICE_SEPARATOR
-from agents.privileged import SPEC_KIND as PRIVILEGED_KIND
 from branch_gym.evaluation.trials import TrialRecord
+from branch_gym.policy import PolicyFactory
+from branch_gym.privileged import SPEC_KIND as PRIVILEGED_KIND
 from recon.metrics import MetricsConfig
 from recon.plot3d import fit_view, plot_branch
 
@@ -37,7 +37,11 @@ POINT_COLORMAP = "tab20"  # 20 distinct colours: a benchmark compares up to ~17 
 
 
 def write_figures(
-    out: Path, summary: dict, records: Sequence[TrialRecord], plot_seeds: Sequence[int]
+    out: Path,
+    summary: dict,
+    records: Sequence[TrialRecord],
+    plot_seeds: Sequence[int],
+    factory: PolicyFactory,
 ) -> list[Path]:
     """Write ``missed_vs_scan_time.png`` and ``tree_<seed>.png`` for each seed to plot.
 
@@ -46,26 +50,27 @@ def write_figures(
         summary: The evaluation summary (``report.build_summary``).
         records: All trials, policy order then seed.
         plot_seeds: Tree seeds to draw, one figure each (all policies side by side).
+        factory: Reads the policy specs (which are learned, how to name them).
 
     Returns:
         The files written.
     """
     paths = [out / "missed_vs_scan_time.png"]
-    plot_missed_vs_scan_time(summary, paths[0])
+    plot_missed_vs_scan_time(summary, paths[0], factory)
     for seed in plot_seeds:
         paths.append(out / f"tree_{seed}.png")
         plot_tree([r for r in records if r.seed == seed], paths[-1])
     return paths
 
 
-def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
+def plot_missed_vs_scan_time(summary: dict, path: Path, factory: PolicyFactory) -> None:
     """The Pareto plot: missed % against mean scan time, one point per policy.
 
     Error bars are the 95 % bootstrap intervals over trees (``missed_pct_ci``,
     ``scan_time_s_ci``; the std of the scan time where an interval is missing). Fixed schedules
-    are circles, learned policies (``ppo:``) squares joined by their front
+    are circles, learned policies (``factory.is_learned``) squares joined by their front
     (:func:`learned_front`), privileged bounds stars; the legend names each point
-    (:func:`short_label`).
+    (``factory.label``).
     """
     figure = Figure(figsize=(9.0, 5.0))
     FigureCanvasAgg(figure)
@@ -79,7 +84,7 @@ def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
         x, y = time_s["mean"], missed
         xerr = _error_bar(x, entry.get("scan_time_s_ci"), time_s["std"] or 0.0)
         yerr = _error_bar(y, entry.get("missed_pct_ci"), 0.0)
-        is_learned = policy.startswith(PPO_SPEC_PREFIX)
+        is_learned = factory.is_learned(policy)
         if is_learned:
             marker = LEARNED_MARKER
         elif policy.split(":")[0] == PRIVILEGED_KIND:
@@ -88,7 +93,7 @@ def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
             marker = FIXED_MARKER
         axes.errorbar(
             x, y, xerr=xerr, yerr=yerr, fmt=marker, capsize=3, markersize=7,
-            color=colors[index % len(colors)], label=short_label(policy),
+            color=colors[index % len(colors)], label=factory.label(policy),
         )  # fmt: skip
         if is_learned:
             learned.append((x, y))
@@ -106,20 +111,6 @@ def plot_missed_vs_scan_time(summary: dict, path: Path) -> None:
     axes.grid(alpha=0.3)
     figure.tight_layout()
     figure.savefig(path, dpi=120)
-
-
-def short_label(policy: str) -> str:
-    """A policy spec as the plot names it: a model path shortened to its file's stem.
-
-    >>> short_label("ppo:research/records/run/refit.zip@400")
-    'ppo:refit@400'
-    >>> short_label("periodic:22.5:1.5")
-    'periodic:22.5:1.5'
-    """
-    if not policy.startswith(PPO_SPEC_PREFIX):
-        return policy
-    path, separator, price = policy[len(PPO_SPEC_PREFIX) :].partition(PRICE_SEPARATOR)
-    return f"{PPO_SPEC_PREFIX}{Path(path).stem}{separator}{price}"
 
 
 def learned_front(points: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:

@@ -27,6 +27,7 @@ from branch_gym.evaluation.config import EvalConfig, TrialError, TrialKey
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.evaluation.trials import TrialRecord, code_version, trial_path
 from branch_gym.files import write_json_atomic
+from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
 
 logger = logging.getLogger(__name__)
@@ -125,10 +126,16 @@ def init_local(ray: ModuleType, num_cpus: int) -> None:
 
 
 def trial_json(
-    policy: str, seed: int, scan: ScanConfig, scan_hash: str, code_version: str | None = None
+    policy: str,
+    seed: int,
+    scan: ScanConfig,
+    scan_hash: str,
+    factory: PolicyFactory,
+    code_version: str | None = None,
 ) -> dict[str, Any]:
     """Run one trial and return its record as strict JSON (the body of a Ray task).
 
+    ``factory`` reads the policy spec (pickled by reference: the workers import its package).
     ``code_version`` is the driver's (:func:`~branch_gym.evaluation.trials.code_version`): a
     cluster's workers need not run from a git checkout.
 
@@ -136,7 +143,7 @@ def trial_json(
         TrialError: the trial raised (the message names it).
     """
     try:
-        result = run_trial(seed, policy, scan)
+        result = run_trial(seed, policy, scan, factory)
     except Exception as exc:
         raise TrialError(f"trial {policy!r} seed {seed} raised {exc!r}") from exc
     return TrialRecord.from_scan(result, policy, scan_hash, code_version).to_json_dict()
@@ -178,7 +185,9 @@ def run_trials_ray(
             while queue or running:
                 while queue and len(running) < workers:
                     policy, seed = queue.pop()
-                    ref = task.remote(policy, seed, config.scan, config.scan_hash, version)
+                    ref = task.remote(
+                        policy, seed, config.scan, config.scan_hash, config.policy_factory, version
+                    )
                     running[ref] = (policy, seed)
                 (ready,), _ = ray.wait(list(running), num_returns=1)
                 key = running.pop(ready)

@@ -17,14 +17,13 @@ import itertools
 import json
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from branch_gym.attribution import MISS_NEVER_SEEN, MISS_SEEN
 from branch_gym.evaluation.config import EvalConfig
-from branch_gym.evaluation.paper import paper_column
 from branch_gym.evaluation.statistics import bootstrap_ci, paired_comparison
 from branch_gym.evaluation.trials import TrialRecord
 from recon.metrics import aggregate
@@ -194,8 +193,14 @@ def format_table(summary: dict) -> str:
     return _markdown([header, *rows])
 
 
-def format_comparison(summary: dict) -> str:
-    """Our table with the paper's Table I value beside each column (``-``: not reported)."""
+def format_comparison(summary: dict, paper_column: Callable[[str], dict | None]) -> str:
+    """Our table with the paper's Table I value beside each column (``-``: not reported).
+
+    Args:
+        summary: The content of ``summary.json``.
+        paper_column: A policy spec -> the paper's column for it (summary-shaped), or None
+            where the paper has none (``agents.paper.paper_column``).
+    """
     policies = summary["policies"]
     header = [""]
     for policy in policies:

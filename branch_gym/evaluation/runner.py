@@ -28,7 +28,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from agents.ppo import PPO_SPEC_PREFIX, check_ppo_spec, normalizer_path
 from branch_gym.config_utils import flatten_dict
 from branch_gym.evaluation.config import EvalConfig, TrialError, TrialKey
 from branch_gym.evaluation.episodes import Recording, run_trial
@@ -44,6 +43,7 @@ from branch_gym.evaluation.trials import (
     trial_path,
 )
 from branch_gym.files import write_json_atomic
+from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
 from recon.segmentation.onnx_network import weights_digest
 from recon.segmentation.segmenter import weights_path_of
@@ -84,8 +84,9 @@ def check_output_folder(config: EvalConfig, out: Path) -> None:
     else:
         write_json_atomic(path, ours)
     for policy in config.policies:
-        if policy.startswith(PPO_SPEC_PREFIX):
-            _check_model_file(policy, out)
+        files = config.policy_factory.files(policy)
+        if files:
+            _check_model_files(policy, files, out)
     if is_learned_segmenter(config.scan.segmenter):
         _check_segmenter_weights(config.scan.segmenter, out)
 
@@ -126,13 +127,13 @@ def _record_digest(record: Path, ours: dict, mismatch: str, remedy: str) -> None
         )
 
 
-def _check_model_file(policy: str, out: Path) -> None:
-    """Record the digest of a ``ppo:PATH`` policy's files next to its trials, or refuse a change."""
-    model = check_ppo_spec(policy)
-    digest = hashlib.sha256(model.read_bytes())
-    stats = normalizer_path(model)
-    if stats.is_file():
-        digest.update(stats.read_bytes())
+def _check_model_files(policy: str, files: Sequence[Path], out: Path) -> None:
+    """Record the digest of a learned policy's files (the model first) next to its trials, or
+    refuse a change."""
+    model = files[0]
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(path.read_bytes())
     ours = {"model": str(model), "sha256": digest.hexdigest()}
     record = out / TRIALS_DIR / policy_slug(policy) / MODEL_FILE
     _record_digest(
@@ -184,7 +185,16 @@ def run_trials(
     if config.backend == "ray":
         return run_trials_ray(config, out, keys, on_done)
     tasks = [
-        _Task(policy, seed, config.scan, config.scan_hash, out, code_version(), config.record_dir)
+        _Task(
+            policy,
+            seed,
+            config.scan,
+            config.scan_hash,
+            out,
+            config.policy_factory,
+            code_version(),
+            config.record_dir,
+        )
         for policy, seed in keys
     ]
     done: list[TrialKey] = []
@@ -247,6 +257,7 @@ class _Task:
     scan: ScanConfig
     scan_hash: str
     out: Path
+    factory: PolicyFactory
     code_version: str | None = None
     record_dir: Path | None = None
 
@@ -283,7 +294,7 @@ def _run_task(task: _Task) -> TrialKey:
     """Run one scan and save it (in a worker process, or in this one)."""
     start = time.perf_counter()
     try:
-        result = run_trial(task.seed, task.policy, task.scan, task.recording())
+        result = run_trial(task.seed, task.policy, task.scan, task.factory, task.recording())
     except Exception as exc:
         raise TrialError(f"trial {task.policy!r} seed {task.seed} raised {exc!r}") from exc
     save_trial(

@@ -19,9 +19,9 @@ from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 
-from agents.ppo import normalizer_path
 from branch_gym.files import write_json_atomic
 from branch_gym.training.envs import episode_counts
+from branch_gym.training.model_files import normalizer_path
 from branch_gym.training.paths import KEEP_CHECKPOINTS, RunPaths
 
 logger = logging.getLogger(__name__)

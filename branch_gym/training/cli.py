@@ -31,6 +31,7 @@ from pathlib import Path
 from branch_gym.config_utils import load_config
 from branch_gym.env.versions import ENV_IDS
 from branch_gym.training.config import TrainConfig
+from branch_gym.training.model_files import ModelFinder, existing_file
 from branch_gym.training.train import train
 
 EXIT_USAGE = 2
@@ -160,8 +161,15 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
     )
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
+def main(argv: list[str] | None = None, find_model: ModelFinder = existing_file) -> int:
+    """Run the command line; returns the exit status.
+
+    Args:
+        argv: The arguments (None: ``sys.argv[1:]``).
+        find_model: ``--init-model`` -> its file; ``agents.commands`` (``train.py``,
+            ``branch-gym-train``) hands in ``agents.ppo.resolve_model_path``, which also knows
+            the shipped models' names.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -170,7 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     except (FileNotFoundError, ValueError, TypeError) as exc:
         parser.error(str(exc))
     try:
-        result = train(config, args.out, resume=args.resume, progress=True)
+        result = train(
+            config, args.out, resume=args.resume, progress=True, find_model=find_model
+        )
     except (FileExistsError, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -191,6 +201,3 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {result.final_model}")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -18,12 +18,12 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 
-from agents.ppo import PolicyAgent
-from agents.protocol import Agent
 from branch_gym.env.info import final_metrics
 from branch_gym.evaluation.episodes import evaluate_policy
+from branch_gym.policy import Policy
 from branch_gym.training.callbacks import scan_metrics
 from branch_gym.training.checkpoints import save_model
+from branch_gym.training.model_files import PolicyAgent
 from branch_gym.training.paths import RunPaths
 
 logger = logging.getLogger(__name__)
@@ -57,12 +57,13 @@ class EvalResult:
 
 
 def evaluate_policy_on_trees(
-    agent: Agent, env: Any, tree_seeds: list[int], num_timesteps: int = 0
+    agent: Policy, env: Any, tree_seeds: list[int], num_timesteps: int = 0
 ) -> EvalResult:
     """Play one deterministic episode per tree seed and average the scan metrics.
 
     Args:
-        agent: Anything with SB3's ``predict`` (e.g. :class:`agents.ppo.PolicyAgent`).
+        agent: Anything with SB3's ``predict`` (e.g. a
+            :class:`~branch_gym.training.model_files.PolicyAgent`).
         env: A single ``BranchScan`` env (not vectorised).
         tree_seeds: The trees to scan.
         num_timesteps: Recorded in the result.

@@ -21,13 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from agents.ppo import (
-    ENV_ID_ATTRIBUTE,
-    algorithm_class,
-    load_model,
-    load_normalizer,
-    resolve_model_path,
-)
 from branch_gym.training.callbacks import (
     ScanMetricsCallback,
     TorchThreadsCallback,
@@ -50,6 +43,14 @@ from branch_gym.training.envs import (
     restore_episode_counts,
 )
 from branch_gym.training.evaluation import EvalResult, HeldOutEvalCallback
+from branch_gym.training.model_files import (
+    ENV_ID_ATTRIBUTE,
+    ModelFinder,
+    algorithm_class,
+    existing_file,
+    load_model,
+    load_normalizer,
+)
 from branch_gym.training.paths import TB_LOG_NAME, RunPaths
 from branch_gym.training.seeds import eval_tree_seeds, train_seed_range
 from branch_gym.training.worker_rollouts import WorkerRolloutPPO
@@ -82,7 +83,11 @@ class TrainResult:
 
 
 def train(
-    config: TrainConfig, out: str | Path, resume: bool = False, progress: bool = False
+    config: TrainConfig,
+    out: str | Path,
+    resume: bool = False,
+    progress: bool = False,
+    find_model: ModelFinder = existing_file,
 ) -> TrainResult:
     """Train (or go on training) a PPO policy until ``config.timesteps`` environment steps.
 
@@ -92,6 +97,8 @@ def train(
         out: The run folder.
         resume: Continue from the latest checkpoint in ``out``.
         progress: Show a tqdm progress bar (on stderr).
+        find_model: ``config.init_model`` -> its file (``agents.ppo.resolve_model_path`` also
+            knows the shipped models' names); plain paths by default.
 
     Raises:
         FileExistsError: a new run in a folder that already holds one.
@@ -120,7 +127,7 @@ def train(
     eval_env = make_eval_env(config) if config.eval_every > 0 else None
     try:
         if model is None:
-            model = new_model(config, venv, str(paths.tensorboard))
+            model = new_model(config, venv, str(paths.tensorboard), find_model)
         else:
             model.set_env(venv)
             model.set_random_seed(_resume_seed(config.seed, checkpoint.num_timesteps))
@@ -232,7 +239,12 @@ def _check_run_folder(config: TrainConfig, paths: RunPaths, resume: bool) -> Any
     return checkpoint
 
 
-def new_model(config: TrainConfig, env: Any, tensorboard_log: str | None = None) -> Any:
+def new_model(
+    config: TrainConfig,
+    env: Any,
+    tensorboard_log: str | None = None,
+    find_model: ModelFinder = existing_file,
+) -> Any:
     """A fresh PPO (or RecurrentPPO) model of the run's hyper-parameters on ``env``.
 
     Its weights come from ``config.init_model`` when set, else a random initialisation with
@@ -242,6 +254,7 @@ def new_model(config: TrainConfig, env: Any, tensorboard_log: str | None = None)
         config: The run.
         env: A (vector) env of the run's spaces.
         tensorboard_log: TensorBoard folder, or None for no logs.
+        find_model: ``config.init_model`` -> its file.
     """
     model = training_algorithm(config)(
         policy_class(env.observation_space, config.recurrent),
@@ -254,7 +267,7 @@ def new_model(config: TrainConfig, env: Any, tensorboard_log: str | None = None)
     )
     setattr(model, ENV_ID_ATTRIBUTE, config.env_id)  # every save of the model records it
     if config.init_model is not None:
-        load_policy_weights(model, config.init_model)
+        load_policy_weights(model, find_model(config.init_model))
         scale_action_logits(model, config.init_logit_scale)
     else:
         apply_first_action_logit(model, config.ppo.first_action_logit_init)
@@ -273,14 +286,14 @@ def load_policy_weights(model: Any, path: str | Path) -> None:
 
     Args:
         model: The new model.
-        path: A model file, or a shipped model's name (``ppo_dagger_v2``).
+        path: A model file.
 
     Raises:
         FileNotFoundError: no such file (named).
         ValueError: not a model file (``ModelFileError``), a model of another env id than
             ``model``'s, or a network that does not fit ``model``'s (named).
     """
-    source = load_model(resolve_model_path(path))
+    source = load_model(path)
     theirs, ours = getattr(source, ENV_ID_ATTRIBUTE), getattr(model, ENV_ID_ATTRIBUTE, None)
     if None not in (theirs, ours) and theirs != ours:
         raise ValueError(f"init model {path} was trained on {theirs}, the run's env is {ours}")

@@ -2,7 +2,7 @@
 
 PPO on the scan reward learns slowly: a rotation that pays shows up as ~0.1 found branch per scan
 in a return that varies by whole branches from tree to tree (issue 17). The privileged policy
-(:mod:`agents.privileged`, reads the ground truth) knows, at every step, whether a rotation pays
+(:mod:`branch_gym.privileged`, reads the ground truth) knows, at every step, whether a rotation pays
 and where to. :func:`imitate` distils it into a policy that sees only the observation, with
 DAgger (Ross et al., 2011, "A Reduction of Imitation Learning and Structured Prediction to
 No-Regret Online Learning"):

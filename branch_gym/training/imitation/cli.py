@@ -9,20 +9,20 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
 from dataclasses import replace
 from pathlib import Path
 
-from agents.privileged import HOME_SPEC
-from agents.privileged import SPEC_KIND as PRIVILEGED_SPEC
 from branch_gym.config_utils import load_config
 from branch_gym.env.config import TREE_PRESETS
 from branch_gym.env.versions import ENV_IDS
 from branch_gym.evaluation.ray_backend import add_backend_arguments
+from branch_gym.privileged import HOME_SPEC
+from branch_gym.privileged import SPEC_KIND as PRIVILEGED_SPEC
 from branch_gym.sim.world import WORLDS
 from branch_gym.training.imitation.config import ImitationConfig
 from branch_gym.training.imitation.cost_to_go import ROLLOUTS
 from branch_gym.training.imitation.rounds import imitate
+from branch_gym.training.model_files import ModelFinder, existing_file
 
 EXIT_USAGE = 2
 
@@ -147,15 +147,29 @@ def config_from_args(args: argparse.Namespace) -> ImitationConfig:
     return replace(config, train=train, **{k: v for k, v in changes.items() if v is not None})
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
+def main(argv: list[str] | None = None, find_model: ModelFinder = existing_file) -> int:
+    """Run the command line; returns the exit status.
+
+    Args:
+        argv: The arguments (None: ``sys.argv[1:]``).
+        find_model: ``--init-model`` -> its file; ``agents.commands`` (``branch-gym-imitate``)
+            hands in ``agents.ppo.resolve_model_path``, which also knows the shipped models'
+            names.
+    """
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         config = config_from_args(args)
         final = imitate(
-            config, args.out, args.resume, args.workers, True, args.backend, args.address
+            config,
+            args.out,
+            args.resume,
+            args.workers,
+            True,
+            args.backend,
+            args.address,
+            find_model,
         )
     except (FileExistsError, FileNotFoundError, ValueError, ImportError) as exc:
         logging.getLogger(__name__).error("%s", exc)
@@ -163,6 +177,3 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {final}")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

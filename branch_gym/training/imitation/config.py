@@ -6,10 +6,10 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from agents.privileged import HOME_SPEC, parse_privileged_spec
-from agents.privileged import SPEC_KIND as PRIVILEGED_SPEC
 from branch_gym.config_utils import check_keys
 from branch_gym.env.versions import env_version
+from branch_gym.privileged import HOME_SPEC, parse_privileged_spec
+from branch_gym.privileged import SPEC_KIND as PRIVILEGED_SPEC
 from branch_gym.sim.validation import require_int, require_non_negative, require_positive
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.imitation.cost_to_go import ROLLOUTS
@@ -103,7 +103,7 @@ class ImitationConfig:
             () (off); the orchard recipe's 25, 50, 100, 200, 400, the env's range.
         expert: The labelling expert's policy spec: ``privileged`` (holds where nothing is
             pending, the shipped students') or ``privileged:home`` (turns back to 0 then:
-            :class:`agents.privileged.PrivilegedConfig`).
+            :class:`branch_gym.privileged.PrivilegedConfig`).
 
     With ``train.recurrent`` the student is an sb3-contrib ``RecurrentPPO`` (the same features
     followed by an LSTM, ``MultiInputLstmPolicy``): it plays with its LSTM state carried through

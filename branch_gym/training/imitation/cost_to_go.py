@@ -35,8 +35,8 @@ from typing import Any
 
 import numpy as np
 
-from agents.baselines import BaselineAgent
 from branch_gym.env.layout import VECTOR_KEY, VectorField
+from branch_gym.policy import BaselineAgent
 
 ROLLOUTS = ("student", "expert")
 

@@ -30,23 +30,28 @@ from branch_gym.env.reward import RewardConfig
 from branch_gym.training.imitation.config import ImitationConfig
 from branch_gym.training.imitation.cost_to_go import expected_regret
 from branch_gym.training.imitation.data import OUTCOME_COLUMNS, RoundData, episode_slices
+from branch_gym.training.model_files import ModelFinder, existing_file
 from branch_gym.training.train import new_model
 
 _AUC_BATCH = 1024  # observations per forward pass of rotation_auc (memory, not results)
 
 
-def new_student(config: ImitationConfig, env: Any = None) -> Any:
+def new_student(
+    config: ImitationConfig, env: Any = None, find_model: ModelFinder = existing_file
+) -> Any:
     """A fresh PPO model of the run's architecture.
 
     Args:
         config: The run.
         env: An env of the run's spaces; None builds one for the call.
+        find_model: ``config.train.init_model`` -> its file.
     """
     train = config.train
     own = env is None
     env = gym.make(train.env_id, **train.env_kwargs()) if own else env
     try:
-        return new_model(replace(train, ppo=replace(train.ppo, first_action_logit_init=0.0)), env)
+        student = replace(train, ppo=replace(train.ppo, first_action_logit_init=0.0))
+        return new_model(student, env, find_model=find_model)
     finally:
         if own:
             env.close()

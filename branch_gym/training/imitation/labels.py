@@ -14,10 +14,9 @@ import gymnasium as gym
 import numpy as np
 
 import branch_gym  # noqa: F401  (registers the env ids in worker processes)
-from agents.ppo import load_model
-from agents.privileged import SPEC_KIND as PRIVILEGED_SPEC
-from agents.privileged import PrivilegedAgent, parse_privileged_spec
 from branch_gym.evaluation.episodes import run_episode
+from branch_gym.privileged import SPEC_KIND as PRIVILEGED_SPEC
+from branch_gym.privileged import PrivilegedAgent, parse_privileged_spec
 from branch_gym.threads import pin_worker_threads
 from branch_gym.training.config import TrainConfig
 from branch_gym.training.imitation.cost_to_go import (
@@ -27,6 +26,7 @@ from branch_gym.training.imitation.cost_to_go import (
     play_branch,
 )
 from branch_gym.training.imitation.data import RoundData
+from branch_gym.training.model_files import load_model
 
 _WORKER: dict[str, Any] = {}
 
@@ -60,7 +60,7 @@ def _student(path: str | None) -> Any:
 class LabellingAgent:
     """Acts as the student (the expert where None) and records the expert's action at each step.
 
-    An :class:`agents.protocol.Agent`, so the project's one episode loop
+    A :class:`branch_gym.policy.Policy`, so the project's one episode loop
     (:func:`branch_gym.evaluation.episodes.run_episode`) plays it.
 
     Args:

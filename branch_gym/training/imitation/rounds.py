@@ -25,7 +25,6 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from agents.ppo import load_model
 from branch_gym.env.layout import VECTOR_KEY, VectorField
 from branch_gym.evaluation.ray_backend import BACKENDS, ray_session
 from branch_gym.threads import pin_worker_threads
@@ -62,6 +61,7 @@ from branch_gym.training.imitation.labels import (
     episode_task,
     init_worker,
 )
+from branch_gym.training.model_files import ModelFinder, existing_file, load_model
 from recon.metrics import pooled_percent
 
 logger = logging.getLogger(__name__)
@@ -78,6 +78,7 @@ def imitate(
     progress: bool = False,
     backend: str = "pool",
     address: str | None = None,
+    find_model: ModelFinder = existing_file,
 ) -> Path:
     """Run (or resume) DAgger; returns ``OUT/model.zip``, the student after the last round.
 
@@ -90,6 +91,8 @@ def imitate(
         backend: "pool" (a process pool here) or "ray" (Ray tasks: a local instance, or the
             cluster at ``address``); the labels are the same either way.
         address: A Ray cluster address ("auto", "HOST:PORT", "ray://HOST:10001"); with "ray".
+        find_model: ``config.train.init_model`` -> its file (plain paths by default;
+            ``agents.ppo.resolve_model_path`` also knows the shipped models' names).
 
     Raises:
         FileExistsError: a new run in a folder that already holds one.
@@ -114,7 +117,11 @@ def imitate(
     done = finished_rounds(out, config.rounds)
     rounds = [load_round(out, k) for k in range(done)]
     spaces_env = gym.make(config.train.env_id, **config.train.env_kwargs())
-    model = load_model(model_path(out, done - 1)) if done else new_student(config, spaces_env)
+    model = (
+        load_model(model_path(out, done - 1))
+        if done
+        else new_student(config, spaces_env, find_model)
+    )
     bounds = value_bounds_s(spaces_env)
     reward = spaces_env.unwrapped.config.reward
     bar = None
@@ -148,7 +155,7 @@ def imitate(
                 held_out_auc = math.nan if student_path is None else rotation_auc(model, round_data)
                 rng = np.random.default_rng([config.train.seed, round_index])
                 if config.from_scratch:
-                    model = new_student(config, spaces_env)
+                    model = new_student(config, spaces_env, find_model)
                 all_labels = RoundData.concatenate(rounds)
                 fit = fit_student(model, all_labels, config, rng, bounds, reward)
                 fit["student_rotation_auc"] = held_out_auc

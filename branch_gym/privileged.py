@@ -14,8 +14,11 @@ With ``return_home`` it turns back to the home angle (0) once nothing is pending
 paper's schedule comes back too: an expert for students that cannot see what is pending, who
 would otherwise learn to stay at a turned angle that hides what the home view shows.
 
-Specs (``agents.factory``): ``privileged``, ``privileged:home`` (``return_home``). It needs a
-single, unwrapped-able env (not vectorised).
+It lives with the simulator, not in ``agents``: it reads the simulator's ground truth, as the
+``gt`` segmenter and the ``oracle`` tracker do, and the DAgger expert
+(:mod:`branch_gym.training.imitation`) is this policy. Specs (``agents.factory``):
+``privileged``, ``privileged:home`` (``return_home``). It needs a single, unwrapped-able env (not
+vectorised).
 """
 
 from __future__ import annotations
@@ -26,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from agents.baselines import BaselineAgent
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG
+from branch_gym.policy import BaselineAgent
 from branch_gym.sim.validation import require_positive
 from recon.metrics import TruthIndex, evaluate, index_truth
 

@@ -10,6 +10,9 @@ The authors' experiment script ran ``pan_frequency`` 1 and 2 for the columns lab
 2.5 (``shared/spec/reference.md``): ``ftl:ANGLE:1`` and ``ftl:ANGLE:2`` (:mod:`agents.ftl`) are
 the controllers behind those columns, and are printed next to them; ``periodic:ANGLE:FREQ``
 follows the paper's words for the same labels.
+
+:func:`paper_column` is what ``branch_gym.evaluation.report.format_comparison`` is handed to
+print the paper's column beside ours.
 """
 
 from __future__ import annotations
