@@ -249,3 +249,58 @@ def test_cli_scores_with_a_fake_segmenter(
     monkeypatch.setattr(_FakeSegmenter, "uses_flow_picture", False, raising=False)
     assert cli.main(["score-real", "--data", str(folder), "--weights", "learned"]) == 0
     assert loaded[1][0] == "learned" and loaded[1][1].calls[0]["flow_image"] is None
+
+
+def test_the_attached_rule_asks_only_for_large_side_branches_near_a_trunk() -> None:
+    """The kept-aside frames' rule (the data's README): >= 100 px within 5 px of a trunk."""
+    h, w = 240, 320
+    trunk = np.zeros((h, w), bool)
+    trunk[:, 150:170] = True
+    attached = np.zeros((h, w), np.uint8)
+    cv2.line(attached, (170, 120), (290, 60), 1, 6)
+    far = np.zeros((h, w), np.uint8)
+    cv2.line(far, (20, 200), (120, 120), 1, 6)  # 30 px from the trunk: not asked for
+    small = np.zeros((h, w), bool)
+    small[100:104, 140:150] = True  # 40 px touching the trunk: not asked for
+    frame = RealFrame("1", np.zeros((h, w, 3), np.uint8), None, [trunk],
+                      [attached.astype(bool), far.astype(bool), small])  # fmt: skip
+    config = RealScoreConfig.attached()
+    score = score_prediction(frame.target, frame, config)
+    assert score.primary_on_trunk
+    assert score.side_branches == 1 and score.side_branches_found == 1
+    # Without the side branch in the prediction it is asked for and not found.
+    missing = score_prediction(frame.target & ~attached.astype(bool), frame, config)
+    assert missing.side_branches == 1 and missing.side_branches_found == 0
+    # The issue-15 rule asks for all three.
+    assert score_prediction(frame.target, frame).side_branches == 3
+
+
+def test_renders_become_frames_with_the_labels_as_hand_masks() -> None:
+    from branch_gym.segmenter_training.real_frames import frames_from_renders
+    from branch_gym.sim.scene.labels import details_label, own_uprights_label
+
+    h, w = 240, 320
+    labels = np.full((1, h, w), 200, np.uint16)  # sky
+    labels[0, :, 150:170] = 1  # the primary
+    labels[0, 100:106, 170:300] = 2  # secondary 0
+    labels[0, 150:154, 100:150] = 3  # secondary 1
+    labels[0, 50:54, 170:180] = details_label(2)  # a spur: in no mask
+    labels[0, :, 20:30] = own_uprights_label(2)  # another upright: a trunk mask
+    flow = np.zeros((1, h, w, 2), np.float16)
+    flow[0, labels[0] == 1] = (0.0, 3.0)
+    data = {
+        "rgb": np.zeros((1, 2, h, w, 3), np.uint8),
+        "flow": flow,
+        "labels": labels,
+        "n_secondaries": np.array([2]),
+        "seeds": np.array([7]),
+    }
+    (frame,) = frames_from_renders(data)
+    assert frame.name == "7_0"
+    assert len(frame.trunk_masks) == 2 and len(frame.side_branch_masks) == 2
+    assert frame.target.sum() == ((labels[0] >= 1) & (labels[0] <= 3)).sum() + 240 * 10
+    assert not frame.target[50:54, 170:180].any()
+    # The flow picture codes the exact flow: the moving primary saturated, the rest white.
+    assert frame.flow_picture[120, 160].min() < 50 and (frame.flow_picture[120, 60] == 255).all()
+    with pytest.raises(ValueError, match="n_secondaries"):
+        frames_from_renders({k: v for k, v in data.items() if k != "n_secondaries"})

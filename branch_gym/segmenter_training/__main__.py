@@ -54,12 +54,14 @@ from branch_gym.segmenter_training.real_frames import (
     RealScoreConfig,
     draw_score_figure,
     format_scores,
+    frames_from_renders,
     load_real_frames,
     score_hand_masks,
     score_report,
     score_segmenter,
 )
 from branch_gym.segmenter_training.train import export_checkpoint, pair_iou, train
+from recon.curve2d.types import Curve2DConfig
 from recon.segmentation import load_segmenter
 from recon.segmentation.network import ENCODERS, LITE0_ENCODER, LITE0_WIDTHS, SMALL_ENCODER
 
@@ -129,13 +131,17 @@ def _train(args: argparse.Namespace) -> None:
         widths=tuple(args.widths or default_widths),
         decoder_widths=tuple(args.decoder_widths or base.net.decoder_widths),
     )  # fmt: skip
-    flow = replace(base.orchard.flow, no_flow_probability=args.no_flow_probability)
+    flow = replace(
+        base.orchard.flow, no_flow_probability=args.no_flow_probability,
+        near_twig_probability=args.near_twig_probability,
+    )  # fmt: skip
     config = replace(
         base, net=net, steps=args.steps, batch_size=args.batch_size,
         learning_rate=args.learning_rate,
         encoder_learning_rate_scale=args.encoder_learning_rate_scale,
         side_branch_weight=args.side_branch_weight,
         nearer_negative_weight=args.nearer_negative_weight,
+        skeleton_weight=args.skeleton_weight,
         orchard=replace(
             base.orchard, flow=flow, details_as_background=args.details_as_background,
             overcast_probability=args.overcast_probability,
@@ -190,10 +196,18 @@ def _score_real(args: argparse.Namespace) -> None:
     spec = args.weights
     if spec != "learned" and not spec.startswith("learned:"):
         spec = f"learned:{spec}"  # a plain weights path
-    frames = load_real_frames(
-        Path(args.data), size=tuple(args.size), swap_flow_red_blue=not args.flow_as_stored
+    if args.renders:
+        frames = frames_from_renders(load_orchard_shards(Path(args.data)))
+    else:
+        frames = load_real_frames(
+            Path(args.data), size=tuple(args.size), swap_flow_red_blue=not args.flow_as_stored
+        )
+    curve2d = replace(Curve2DConfig(), max_primary_turn_deg=args.max_primary_turn_deg)
+    config = (
+        RealScoreConfig.attached(curve2d)
+        if args.rule == "attached"
+        else RealScoreConfig(curve2d=curve2d)
     )
-    config = RealScoreConfig()
     segmenter = load_segmenter(spec)
     use_flow = not args.no_flow and getattr(segmenter, "uses_flow_picture", True)
     if not (use_flow or args.no_flow):
@@ -305,6 +319,12 @@ def main(argv: list[str] | None = None) -> int:
         default=FlowAugmentConfig.no_flow_probability,
         help="share of orchard training frames seen without a flow picture (colour alone)",
     )  # fmt: skip
+    tr.add_argument("--skeleton-weight", type=float, default=TrainConfig.skeleton_weight,
+                    help="weight of the clDice (soft-skeleton) term beside BCE + Dice")  # fmt: skip
+    tr.add_argument(
+        "--near-twig-probability", type=float, default=FlowAugmentConfig.near_twig_probability,
+        help="share of orchard training frames with a near twig setting the flow picture's scale",
+    )  # fmt: skip
     tr.add_argument(
         "--details-as-background", action="store_true",
         help="the target leaves out the tree's spurs, stubs and buds, as real hand masks do",
@@ -367,6 +387,20 @@ def main(argv: list[str] | None = None) -> int:
         "--size", nargs=2, type=int, metavar=("W", "H"), default=DEFAULT_SIZE,
         help="size the frames and hand masks are resized to (default: the pipeline's camera, "
         "320x240; the development frames' own: 640 480)",
+    )  # fmt: skip
+    sr.add_argument(
+        "--rule", choices=("attached", "coverage"), default="attached",
+        help="attached: the kept-aside frames' rule (the data's README.md: attached side "
+        "branches, the 2D stage's samples); coverage: issue 15's rule (every side branch)",
+    )  # fmt: skip
+    sr.add_argument(
+        "--renders", action="store_true",
+        help="--data is a generate-orchard --evaluation folder: score its renders alike "
+        "(labels as hand masks, the exact flow's picture)",
+    )  # fmt: skip
+    sr.add_argument(
+        "--max-primary-turn-deg", type=float, default=Curve2DConfig.max_primary_turn_deg,
+        help="the 2D stage's Curve2DConfig.max_primary_turn_deg (default inf: the paper's rule)",
     )  # fmt: skip
     sr.add_argument("--out", default=None, help="write the results as JSON")
     sr.add_argument("--figure", default=None, help="write a picture grid of the results")

@@ -149,6 +149,13 @@ class FlowAugmentConfig:
         drift_fraction_range: Its magnitude as a fraction of the largest flow.
         mirror_probability: Mirror the flow vectors (v -> -v) before turning them.
         no_flow_probability: Leave the picture white (a frame without a partner).
+        near_twig_probability: Draw a near twig across the frame, a thin branch of another
+            tree close to the camera moving faster than the scanned tree: the picture's
+            normalisation is then that twig's flow and the tree reads paler (the real
+            pictures are normalised by their largest flow, often such a twig; issue 61). 0:
+            none, as the shipped weights were trained.
+        near_twig_flow_gain_range: The twig's flow over the frame's largest flow.
+        near_twig_width_range_px: Its width (a twig in focus to a blurred near one).
     """
 
     exact_probability: float = 0.5
@@ -162,9 +169,13 @@ class FlowAugmentConfig:
     drift_fraction_range: tuple[float, float] = (0.0, 0.4)
     mirror_probability: float = 0.5
     no_flow_probability: float = 0.1
+    near_twig_probability: float = 0.0
+    near_twig_flow_gain_range: tuple[float, float] = (1.2, 3.0)
+    near_twig_width_range_px: tuple[float, float] = (1.0, 4.0)
 
     def __post_init__(self) -> None:
         for name in (
+            "near_twig_probability",
             "exact_probability",
             "coarse_probability",
             "drift_probability",
@@ -188,6 +199,13 @@ class FlowAugmentConfig:
             raise ValueError(
                 f"FlowAugmentConfig.coarse_factor must be >= 1, got {self.coarse_factor!r}"
             )
+        for name, floor in (("near_twig_flow_gain_range", 1.0), ("near_twig_width_range_px", 1.0)):
+            low, high = getattr(self, name)
+            if not floor <= low <= high:
+                raise ValueError(
+                    f"FlowAugmentConfig.{name} must be a (low, high) range with low >= {floor}, "
+                    f"got {getattr(self, name)!r}"
+                )
 
 
 # A nearer negative's flow over the scanned tree's (our choice; OrchardAugmentConfig.
@@ -296,6 +314,12 @@ class TrainConfig:
         nearer_negative_weight: Weight of the nearer negatives in the cross-entropy (pixels
             of other objects in front of the tree: ``OrchardAugmentConfig.
             nearer_negative_flow_ratio`` marks them; 1: as every pixel).
+        skeleton_weight: Weight of the clDice term (Shit et al. 2021, "clDice - a novel
+            topology-preserving loss function for tubular structure segmentation"; 0: none,
+            the shipped weights' loss). It weighs a thin side branch by its length, not its
+            pixels: real frames' long thin side branches were left out (issue 61).
+        skeleton_iterations: Erosions of its soft skeleton (clDice's k; half the widest
+            trunk's width in a 160x224 crop, our choice).
         checkpoint_every: Steps between checkpoints.
         validate_every: Steps between validation IoU measurements.
         threshold: Branch probability threshold of the shipped segmenter.
@@ -316,6 +340,8 @@ class TrainConfig:
     dice_weight: float = 1.0
     side_branch_weight: float = 1.0
     nearer_negative_weight: float = 1.0
+    skeleton_weight: float = 0.0
+    skeleton_iterations: int = 10
     checkpoint_every: int = 100
     validate_every: int = 500
     threshold: float = 0.5
@@ -331,6 +357,14 @@ class TrainConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0.0):
                 raise ValueError(f"TrainConfig.{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(self.skeleton_weight) and self.skeleton_weight >= 0.0):
+            raise ValueError(
+                f"TrainConfig.skeleton_weight must be finite and >= 0, got {self.skeleton_weight!r}"
+            )
+        if self.skeleton_iterations < 1:
+            raise ValueError(
+                f"TrainConfig.skeleton_iterations must be >= 1, got {self.skeleton_iterations!r}"
+            )
 
     def to_dict(self) -> dict:
         """Plain JSON-able values."""

@@ -256,6 +256,65 @@ def mark_nearer_negatives(
     return marked
 
 
+def add_near_twig(
+    current: np.ndarray,
+    flow: np.ndarray,
+    classes: np.ndarray,
+    rng: np.random.Generator,
+    config: FlowAugmentConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A thin twig close to the camera across the frame: it sets the flow picture's scale.
+
+    A gently curved line from one frame border to another, as dark as the scanned tree's bark,
+    moving like the tree (its median flow direction) but ``near_twig_flow_gain_range`` times
+    faster than the frame's largest flow; it hides what lies behind it (target 0 there).
+
+    Args:
+        current: (H, W, 3) uint8 current frame.
+        flow: (H, W, 2) float32 flow of that frame (pixels).
+        classes: (H, W) uint8 target (0 background).
+        rng: Draws the twig.
+        config: Its ranges.
+
+    Returns:
+        (frame, flow, target) with the twig; unchanged when the frame shows no tree.
+    """
+    tree = (classes > 0) & (classes != TARGET_NEARER_NEGATIVE)
+    if not tree.any():
+        return current, flow, classes
+    h, w = classes.shape
+    speed = np.hypot(flow[..., 0], flow[..., 1])
+    largest = float(speed.max())
+    if largest == 0.0:
+        return current, flow, classes
+    direction = np.median(flow[tree], axis=0)
+    direction = direction / max(float(np.hypot(*direction)), 1e-6)
+
+    # Two points on the border (one of the four sides each), a bend in between.
+    def border_point() -> np.ndarray:
+        side, t = int(rng.integers(4)), float(rng.random())
+        return np.array(((t * w, 0.0), (t * w, h - 1.0), (0.0, t * h), (w - 1.0, t * h))[side])
+
+    start, end = border_point(), border_point()
+    middle = (start + end) / 2 + rng.normal(0.0, 0.15 * min(h, w), 2)
+    t = np.linspace(0.0, 1.0, 64)[:, None]
+    points = (1 - t) ** 2 * start + 2 * (1 - t) * t * middle + t**2 * end
+    width = _uniform(rng, config.near_twig_width_range_px)
+    twig = np.zeros((h, w), np.uint8)
+    cv2.polylines(twig, [np.rint(points).astype(np.int32)], False, 1, max(1, round(width)))
+    twig = twig.astype(bool)
+    bark = np.median(current[tree], axis=0)
+    frame = current.copy()
+    frame[twig] = bark.astype(np.uint8)
+    frame = np.where(twig[..., None], cv2.GaussianBlur(frame, (0, 0), 0.7), frame)
+    gain = _uniform(rng, config.near_twig_flow_gain_range)
+    flow = flow.copy()
+    flow[twig] = (gain * largest * direction).astype(np.float32)
+    classes = classes.copy()
+    classes[twig] = 0
+    return frame, flow, classes
+
+
 def _turn(flow: np.ndarray, rng: np.random.Generator, config: FlowAugmentConfig) -> np.ndarray:
     """Flow vectors turned by a random angle, mirrored first with ``mirror_probability``."""
     u, v = flow[..., 0], flow[..., 1]
@@ -309,6 +368,7 @@ def training_frame(
         rgb_pair = overcast_backlight(rgb_pair, exact_flow, labels, rng, config)
     frames = camera_effects(rgb_pair, rng, config.camera)
     frames = _recolour(frames, rng, config)
+    current = frames[1]
     flow_config = config.flow
     if rng.random() < flow_config.no_flow_probability:
         picture = None
@@ -319,8 +379,13 @@ def training_frame(
             weights = np.asarray(flow_config.dis_weights, float)
             preset = flow_config.dis_presets[rng.choice(len(weights), p=weights / weights.sum())]
             flow = compute_flow(frames[0], frames[1], DenseFlowConfig(preset=str(preset)))
+        # Drawn only when asked for, so that recipes without twigs keep their batches.
+        if (
+            flow_config.near_twig_probability > 0
+            and rng.random() < flow_config.near_twig_probability
+        ):
+            current, flow, classes = add_near_twig(current, flow, classes, rng, flow_config)
         picture = flow_to_picture(_turn(flow, rng, flow_config))
-    current = frames[1]
     if rng.random() < config.flip_probability:  # a mirrored world: the picture mirrors too
         current, classes = current[:, ::-1], classes[:, ::-1]
         picture = None if picture is None else picture[:, ::-1]

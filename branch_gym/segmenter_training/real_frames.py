@@ -52,7 +52,7 @@ import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import cv2
 import numpy as np
@@ -74,9 +74,11 @@ __all__ = [
     "RealFrame",
     "RealFrameScore",
     "RealScoreConfig",
+    "asked_side_branches",
     "distance_to_mask",
     "draw_score_figure",
     "format_scores",
+    "frames_from_renders",
     "load_real_frames",
     "predict_mask",
     "resize_mask",
@@ -119,6 +121,14 @@ class RealScoreConfig:
         curve_spacing_px: Arc-length spacing of the points a curve is tested with (ours: dense
             enough that the fractions do not depend on the 2D stage's 10-30 px sample spacing).
         curve2d: The 2D stage's parameters (the pipeline's defaults, paper IV-B).
+        rule: ``"coverage"``: the rules above (issue 15). ``"attached"``: the rule the kept-aside
+            frames are scored by (``../shared/data/real_dev/README.md``, :meth:`attached`): the
+            2D stage's own samples are tested (not points every ``curve_spacing_px``), the
+            primary against the union of the trunk masks, a side branch by its samples but the
+            first, no coverage; only the attached side-branch masks are asked for.
+        min_side_branch_px: ``"attached"``: a side-branch mask is asked for when it covers at
+            least this many pixels ...
+        attached_within_px: ... and lies within this distance of a trunk mask.
     """
 
     tolerance_px: float = 3.0
@@ -127,6 +137,24 @@ class RealScoreConfig:
     min_branch_coverage: float = 0.3
     curve_spacing_px: float = 2.0
     curve2d: Curve2DConfig = field(default_factory=Curve2DConfig)
+    rule: Literal["coverage", "attached"] = "coverage"
+    min_side_branch_px: int = 100
+    attached_within_px: float = 5.0
+
+    @classmethod
+    def attached(cls, curve2d: Curve2DConfig | None = None) -> RealScoreConfig:
+        """The kept-aside frames' rule (``../shared/data/real_dev/README.md``; issue 61).
+
+        Primary on the trunk: >= 80 % of its samples in the trunk masks' union grown by 2 px.
+        A side-branch mask is asked for when it covers >= 100 px within 5 px of a trunk mask,
+        and found when some side-branch curve has >= 60 % of its samples but the first inside
+        that mask grown by 2 px.
+        """
+        return cls(
+            tolerance_px=2.0, min_on_trunk_fraction=0.8, min_on_branch_fraction=0.6,
+            min_branch_coverage=0.0, rule="attached", min_side_branch_px=100,
+            attached_within_px=5.0, curve2d=curve2d or Curve2DConfig(),
+        )  # fmt: skip
 
     def __post_init__(self) -> None:
         require_non_negative(self, "tolerance_px")
@@ -135,6 +163,11 @@ class RealScoreConfig:
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"RealScoreConfig.{name} must be in [0, 1], got {value!r}")
+        if self.rule not in ("coverage", "attached"):
+            raise ValueError(
+                f"RealScoreConfig.rule must be 'coverage' or 'attached', got {self.rule!r}"
+            )
+        require_non_negative(self, "attached_within_px")
 
     def to_dict(self) -> dict[str, Any]:
         """The thresholds as a JSON-ready dict (the 2D stage's parameters left out)."""
@@ -291,6 +324,56 @@ def load_real_frames(
     return frames
 
 
+def frames_from_renders(data: dict[str, np.ndarray]) -> list[RealFrame]:
+    """Orchard renders as real frames: the same figures on our world (issue 61, part 3).
+
+    Each pair's current frame becomes a :class:`RealFrame` whose "hand masks" are the
+    renderer's labels drawn as the real frames' are: one trunk mask for the primary and one for
+    the scanned tree's other uprights (a UFO tree's), one side-branch mask per secondary; its
+    spurs, stubs and buds are in none (as the hand masks leave them out). The flow picture is
+    the renderer's exact flow coded as the real frames' (a flow network's best case).
+
+    Args:
+        data: Arrays of :func:`~branch_gym.segmenter_training.orchard_pairs.load_orchard_shards`
+            (with ``n_secondaries``).
+
+    Returns:
+        One frame per pair, named ``<tree seed>_<pair index>``.
+
+    Raises:
+        ValueError: ``data`` lacks ``n_secondaries`` (shards written before it was stored).
+    """
+    from branch_gym.sim.scene.labels import (
+        FIRST_SECONDARY_LABEL,
+        PRIMARY_LABEL,
+        own_uprights_label,
+    )
+    from recon.segmentation.flow import flow_to_picture_fast
+
+    if "n_secondaries" not in data:
+        raise ValueError(
+            "render frames need shards that store n_secondaries: generate them again with "
+            "`python -m branch_gym.segmenter_training generate-orchard --evaluation`"
+        )
+    frames = []
+    for index, (pair, flow, labels, n_secondaries, seed) in enumerate(
+        zip(data["rgb"], data["flow"], data["labels"], data["n_secondaries"], data["seeds"],
+            strict=True)
+    ):  # fmt: skip
+        trunks = [labels == PRIMARY_LABEL, labels == own_uprights_label(int(n_secondaries))]
+        sides = [labels == FIRST_SECONDARY_LABEL + i for i in range(int(n_secondaries))]
+        frames.append(
+            RealFrame(
+                name=f"{int(seed)}_{index}",
+                rgb=pair[1],
+                flow_picture=flow_to_picture_fast(flow.astype(np.float32)),
+                trunk_masks=[m for m in trunks if m.any()],
+                side_branch_masks=[m for m in sides if m.any()],
+            )
+        )
+    return frames
+
+
 def _load_frame(path: Path, size: tuple[int, int] | None, swap_flow: bool) -> RealFrame:
     """One frame ``N.png`` with its flow picture and hand masks (see :func:`load_real_frames`)."""
     name = path.stem
@@ -381,8 +464,12 @@ def score_prediction(
     trunk_fraction = math.nan
     if curves.primary is not None:
         points = _curve_points(curves.primary, config)
+        trunks = frame.trunk_masks
+        if config.rule == "attached":
+            trunks = [np.logical_or.reduce(trunks)] if trunks else []
         trunk_fraction = max(
-            _fraction_inside(points, _dilate(m, config.tolerance_px)) for m in frame.trunk_masks
+            (_fraction_inside(points, _dilate(m, config.tolerance_px)) for m in trunks),
+            default=0.0,
         )
     on_trunk = bool(trunk_fraction >= config.min_on_trunk_fraction)  # False for NaN
     found = sum(side_branches_found(frame, curves, config))
@@ -394,7 +481,7 @@ def score_prediction(
         primary_on_trunk=on_trunk,
         primary_trunk_fraction=float(trunk_fraction),
         side_branches_found=int(found),
-        side_branches=len(frame.side_branch_masks),
+        side_branches=len(asked_side_branches(frame, config)),
         side_curves=len(curves.secondaries),
         predicted=predicted,
         curves=curves,
@@ -412,11 +499,45 @@ def side_branches_found(
         config: Matching thresholds (module docstring).
 
     Returns:
-        One flag per ``frame.side_branch_masks``, in order.
+        One flag per mask of :func:`asked_side_branches`, in order.
     """
     config = config or RealScoreConfig()
+    asked = asked_side_branches(frame, config)
+    if config.rule == "attached":
+        dilated = [_dilate(m, config.tolerance_px) for m in asked]
+        side_points = [c.samples_px[1:] for c in curves.secondaries]
+        return [
+            any(
+                len(points) and _fraction_inside(points, mask) >= config.min_on_branch_fraction
+                for points in side_points
+            )
+            for mask in dilated
+        ]
     side_points = [_curve_points(c, config) for c in curves.secondaries]
-    return [_side_branch_found(m, side_points, config) for m in frame.side_branch_masks]
+    return [_side_branch_found(m, side_points, config) for m in asked]
+
+
+def asked_side_branches(frame: RealFrame, config: RealScoreConfig) -> list[np.ndarray]:
+    """The frame's side-branch masks a rule asks for: all, or the attached ones.
+
+    Args:
+        frame: The frame with its hand masks.
+        config: ``rule == "attached"``: the masks of at least ``min_side_branch_px`` pixels
+            within ``attached_within_px`` of a trunk mask; else every mask.
+
+    Returns:
+        The masks asked for, in the frame's order.
+    """
+    if config.rule != "attached":
+        return list(frame.side_branch_masks)
+    if not frame.trunk_masks:
+        return []
+    near_trunk = _dilate(np.logical_or.reduce(frame.trunk_masks), config.attached_within_px)
+    return [
+        m
+        for m in frame.side_branch_masks
+        if np.count_nonzero(m) >= config.min_side_branch_px and (m & near_trunk).any()
+    ]
 
 
 def score_hand_masks(
@@ -555,7 +676,10 @@ def format_scores(title: str, scores: Sequence[RealFrameScore]) -> str:
 
 
 def _curve_points(curve: Curve2D, config: RealScoreConfig) -> np.ndarray:
-    """(K, 2) points (u, v) along a 2D curve, ``config.curve_spacing_px`` apart at most."""
+    """(K, 2) points (u, v) along a 2D curve, ``config.curve_spacing_px`` apart at most
+    (rule ``"attached"``: the 2D stage's own samples)."""
+    if config.rule == "attached":
+        return np.asarray(curve.samples_px, float)
     return curve.curve.resample_by_arclength(config.curve_spacing_px)[0]
 
 

@@ -109,8 +109,11 @@ def segmentation_loss(
     dice_weight: float,
     side_branch_weight: float = 1.0,
     nearer_negative_weight: float = 1.0,
+    skeleton_weight: float = 0.0,
+    skeleton_iterations: int = 10,
 ) -> torch.Tensor:
-    """Binary cross-entropy plus ``dice_weight`` times the soft-Dice loss of the batch.
+    """Binary cross-entropy plus ``dice_weight`` times the soft-Dice loss of the batch
+    (plus ``skeleton_weight`` times :func:`cl_dice_loss`).
 
     Args:
         logits: (B, 1, H, W) branch logits.
@@ -120,6 +123,8 @@ def segmentation_loss(
         dice_weight: Weight of the Dice term.
         side_branch_weight: Weight of side-branch pixels in the cross-entropy.
         nearer_negative_weight: Weight of the nearer negatives in the cross-entropy.
+        skeleton_weight: Weight of the clDice term (0: none).
+        skeleton_iterations: Its soft skeleton's erosions.
 
     Returns:
         Scalar loss tensor.
@@ -135,7 +140,65 @@ def segmentation_loss(
     dims = (1, 2, 3)
     inter = (prob * target).sum(dims)
     dice = 1 - (2 * inter + 1) / (prob.sum(dims) + target.sum(dims) + 1)
-    return bce + dice_weight * dice.mean()
+    loss = bce + dice_weight * dice.mean()
+    if skeleton_weight > 0.0:
+        loss = loss + skeleton_weight * cl_dice_loss(prob, target, skeleton_iterations)
+    return loss
+
+
+def soft_skeleton(prob: torch.Tensor, iterations: int) -> torch.Tensor:
+    """The soft skeleton of a (B, 1, H, W) probability map (clDice, Shit et al. 2021, Alg. 1).
+
+    Repeated soft erosions (a 3x3 min-pool) peel the map; what each erosion's soft opening
+    (erosion then dilation) loses is a piece of the skeleton. A one-pixel-wide line is its own
+    skeleton; a wide trunk keeps its centre line.
+
+    Args:
+        prob: (B, 1, H, W) values in [0, 1].
+        iterations: Erosions (about half the widest structure's width in pixels).
+
+    Returns:
+        (B, 1, H, W) soft skeleton in [0, 1].
+    """
+
+    def erode(x: torch.Tensor) -> torch.Tensor:
+        vertical = -functional.max_pool2d(-x, (3, 1), stride=1, padding=(1, 0))
+        horizontal = -functional.max_pool2d(-x, (1, 3), stride=1, padding=(0, 1))
+        return torch.minimum(vertical, horizontal)
+
+    def dilate(x: torch.Tensor) -> torch.Tensor:
+        return functional.max_pool2d(x, 3, stride=1, padding=1)
+
+    skeleton = functional.relu(prob - dilate(erode(prob)))
+    for _ in range(iterations):
+        prob = erode(prob)
+        delta = functional.relu(prob - dilate(erode(prob)))
+        skeleton = skeleton + functional.relu(delta - skeleton * delta)
+    return skeleton
+
+
+def cl_dice_loss(prob: torch.Tensor, target: torch.Tensor, iterations: int) -> torch.Tensor:
+    """1 - soft clDice of a batch (Shit et al. 2021): thin structures count by their length.
+
+    Topology precision is the share of the predicted skeleton inside the target, topology
+    sensitivity the share of the target's skeleton inside the prediction; a one-pixel-wide
+    branch weighs as much as its length, not its few pixels, so losing it costs as much as
+    losing a trunk of that length.
+
+    Args:
+        prob: (B, 1, H, W) branch probabilities.
+        target: (B, 1, H, W) {0, 1} float target.
+        iterations: :func:`soft_skeleton`'s erosions.
+
+    Returns:
+        Scalar loss in [0, 1] (mean over the batch's frames).
+    """
+    dims = (1, 2, 3)
+    skeleton_prob = soft_skeleton(prob, iterations)
+    skeleton_target = soft_skeleton(target, iterations)
+    precision = ((skeleton_prob * target).sum(dims) + 1) / (skeleton_prob.sum(dims) + 1)
+    sensitivity = ((skeleton_target * prob).sum(dims) + 1) / (skeleton_target.sum(dims) + 1)
+    return (1 - 2 * precision * sensitivity / (precision + sensitivity)).mean()
 
 
 def _lr_factor(step: int, config: TrainConfig) -> float:
@@ -358,7 +421,7 @@ def train(
             group["lr"] = config.learning_rate * group["lr_scale"] * _lr_factor(step, config)
         loss = segmentation_loss(
             model(x), y, config.dice_weight, config.side_branch_weight,
-            config.nearer_negative_weight,
+            config.nearer_negative_weight, config.skeleton_weight, config.skeleton_iterations,
         )  # fmt: skip
         optimiser.zero_grad(set_to_none=True)
         loss.backward()

@@ -38,6 +38,10 @@ _TURN_BASE_PX = 30.0
 _TURN_LOOKAHEAD_PX = 40.0
 _TURN_MIN_CHORD_PX = 8.0
 _TURN_SAMPLES = 65
+# Curve2DConfig.max_primary_turn_deg (ours): a path's run before and after a junction is its
+# chord over 30 px of it (the paper's primary sample spacing; past a junction's blob); a side
+# with less than half that is too short to tell a direction.
+_JUNCTION_CHORD_PX = 30.0
 
 
 class _PrimaryScorer:
@@ -227,6 +231,10 @@ def find_primary(
         pixels = sg.path_pixels(paths[i])[0]
         if len(pixels) < MIN_FIT_PIXELS:
             continue
+        if math.isfinite(config.max_primary_turn_deg) and _turns_at_a_junction(
+            sg, paths[i], pixels, config.max_primary_turn_deg
+        ):
+            continue  # the trunk's path bending into a side branch: its prefix is a candidate
         curve = fit_bezier(pixels)
         lo, hi = scorer.curve_window(curve)
         if scorer.bound_window(lo, hi) < best[2]:
@@ -249,6 +257,46 @@ def find_primary(
         if agreeing is not None:
             best = agreeing
     return best[0], best[1], best[2], len(paths), truncated
+
+
+def _turns_at_a_junction(
+    sg: SearchGraph, path: tuple[int, ...], pixels: np.ndarray, max_turn_deg: float
+) -> bool:
+    """Whether a path turns by more than ``max_turn_deg`` at one of its inner nodes.
+
+    At each node between two of the path's edges, the path's run before it (the chord from
+    the last pixel at least ``_JUNCTION_CHORD_PX`` back to the node) is compared with its run
+    after it (the chord to the first pixel that far ahead); a side shorter than half that is
+    not judged.
+
+    Args:
+        sg: The search graph.
+        path: Half-edge ids.
+        pixels: (P, 2) the path's pixels (``sg.path_pixels(path)[0]``).
+        max_turn_deg: Largest turn allowed.
+    """
+    if len(path) < 2:
+        return False
+    cos_limit = math.cos(math.radians(max_turn_deg))
+    node_index = np.cumsum([len(sg.half_edge_pixels(h)) - 1 for h in path])[:-1]
+    for index in node_index:
+        node = pixels[index]
+        before = np.linalg.norm(pixels[:index] - node, axis=1)
+        after = np.linalg.norm(pixels[index + 1 :] - node, axis=1)
+        if len(before) == 0 or len(after) == 0:
+            continue
+        if before.max() < 0.5 * _JUNCTION_CHORD_PX or after.max() < 0.5 * _JUNCTION_CHORD_PX:
+            continue
+        far_before = np.flatnonzero(before >= min(_JUNCTION_CHORD_PX, before.max()))[-1]
+        far_after = np.flatnonzero(after >= min(_JUNCTION_CHORD_PX, after.max()))[0]
+        incoming = node - pixels[far_before]
+        outgoing = pixels[index + 1 + far_after] - node
+        cos_turn = float(incoming @ outgoing) / float(
+            np.linalg.norm(incoming) * np.linalg.norm(outgoing)
+        )
+        if cos_turn < cos_limit:
+            return True
+    return False
 
 
 def _best_agreeing_path(

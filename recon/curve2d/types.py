@@ -60,6 +60,13 @@ class Curve2DConfig:
             rejected and the scans lost; a blob does not cross the view, a full mask is wider).
         max_spanning_width: Widest such primary, as a fraction of the interior's width across
             the scan direction (ours: half the view).
+        max_primary_turn_deg: A path that turns by more than this at one of its skeleton
+            junctions (its chord over the 30 px before the junction against the one over the
+            30 px after it, ``recon/curve2d/primary.py``) is no primary candidate; its part
+            before the turn still is. ``inf``: no limit, the paper's rule. On single real
+            frames the paper's score takes the trunk's path up into a side branch that
+            reaches the top edge higher than the trunk's cut end (issue 61); a trunk bends
+            gently, a side branch leaves at 30-90 deg.
         spanning_min_inlier_fraction: Fewest of such a primary's skeleton pixels within the
             inlier threshold of its curve (ours: a wide trunk's skeleton is smooth, ~1.0; the
             skeleton of a 50 % speckle mask that crosses the view, 0.86).
@@ -100,6 +107,7 @@ class Curve2DConfig:
     min_primary_elongation: float = 4.0
     primary_view_span: float = 0.9
     max_spanning_width: float = 0.5
+    max_primary_turn_deg: float = math.inf
     spanning_min_inlier_fraction: float = 0.95
     min_secondary_length_px: float = 20.0
     min_secondary_inlier_fraction: float = 0.8
@@ -134,6 +142,10 @@ class Curve2DConfig:
         for name in ("primary_view_span", "max_spanning_width", "spanning_min_inlier_fraction"):
             if not 0.0 < getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in (0, 1], got {getattr(self, name)}")
+        if not 0.0 < self.max_primary_turn_deg <= math.inf:
+            raise ValueError(
+                f"max_primary_turn_deg must be > 0 (inf: no limit), got {self.max_primary_turn_deg}"
+            )
         if not 0.0 < self.max_secondary_bend_deg <= 180.0:
             raise ValueError(
                 f"max_secondary_bend_deg must be in (0, 180], got {self.max_secondary_bend_deg}"
