@@ -1,11 +1,11 @@
 """Environment throughput: ``env_steps_per_s`` (real LK tracking) and ``env_steps_per_s_oracle``.
 
-Whole episodes of ``BranchScan-v0`` at the paper's settings (0.275 -> 0.75 m at 2.5 cm/s, paper
-trees, ground-truth segmentation) with the no-rotation baseline, resets included, on one core
-(the process is pinned to one CPU and OpenCV to one thread for the measurement). A step is one
-modeling iteration: ~10 mm of travel, ~8 rendered frames, the pipeline, scoring and the
-observation. ``env_overhead_ms`` is the env's own share per step (scoring against ground truth +
-observation). Targets (issue "Gymnasium environment"): >= 15 and >= 50 steps/s.
+Whole episodes of the current ``BranchScan`` id (``branch_gym.ENV_ID``) at the paper's settings
+(0.275 -> 0.75 m at 2.5 cm/s, paper trees, ground-truth segmentation) with the no-rotation baseline,
+resets included, on one core (the process is pinned to one CPU and OpenCV to one thread for the
+measurement). A step is one modeling iteration: ~10 mm of travel, ~8 rendered frames, the pipeline,
+scoring and the observation. ``env_overhead_ms`` is the env's own share per step (scoring against
+ground truth + observation). Targets (issue "Gymnasium environment"): >= 15 and >= 50 steps/s.
 ``env_steps_per_s_oracle_fast`` is the oracle's fast training mode (``render_tracking_frames=
 False``: only the frames an iteration runs on are rendered).
 

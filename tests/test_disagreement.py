@@ -116,7 +116,7 @@ def test_discrete_actions_and_specs() -> None:
 
 
 def test_make_agent_builds_it_for_the_env() -> None:
-    env = gymnasium.make(branch_gym.DISCRETE_ENV_ID, tracker="oracle")
+    env = gymnasium.make(branch_gym.DISCRETE_ENV_ID_V0, tracker="oracle")
     try:
         agent = make_agent("disagreement:22.5", env)
     finally:
@@ -139,7 +139,7 @@ EVIDENCE_SCAN = {
 @pytest.mark.slow
 def test_real_episode_rotates_only_on_evidence() -> None:
     """Scans with disagreeing masks rotate, each rotation after persisting evidence."""
-    env = gymnasium.make(branch_gym.ENV_ID, **EVIDENCE_SCAN)
+    env = gymnasium.make(branch_gym.ENV_ID_V0, **EVIDENCE_SCAN)
     agent = make_agent("disagreement", env)
     for seed in range(3, 12):  # the first tree whose scan holds evidence and completes
         obs, _ = env.reset(seed=seed)

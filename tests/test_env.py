@@ -61,14 +61,14 @@ def _run(env: gymnasium.Env, seed: int, actions: list) -> tuple[list, list[float
 
 # ---------------------------------------------------------------------- registration and API
 def test_ids_are_registered_with_the_documented_spaces() -> None:
-    env = gymnasium.make(branch_gym.ENV_ID)
+    env = gymnasium.make(branch_gym.ENV_ID_V0)
     assert env.spec.max_episode_steps == branch_gym.MAX_EPISODE_STEPS
     assert env.action_space == gymnasium.spaces.Box(-1.0, 1.0, (1,), np.float32)
     assert env.observation_space["image"].shape == (3, 60, 80)
     assert env.observation_space["image"].dtype == np.uint8
     assert env.observation_space["vector"].shape == (VECTOR_SIZE,)
     env.close()
-    discrete = gymnasium.make(branch_gym.DISCRETE_ENV_ID)
+    discrete = gymnasium.make(branch_gym.DISCRETE_ENV_ID_V0)
     assert discrete.action_space == gymnasium.spaces.Discrete(5)
     assert discrete.unwrapped.config.discrete_angles_deg == (-45.0, -22.5, 0.0, 22.5, 45.0)
     discrete.close()
@@ -123,7 +123,7 @@ def test_same_seed_and_actions_give_identical_episodes() -> None:
 
 
 def test_step_limit_truncates_and_reset_observation_is_empty() -> None:
-    env = gymnasium.make(branch_gym.ENV_ID, max_episode_steps=1, **SHORT)
+    env = gymnasium.make(branch_gym.ENV_ID_V0, max_episode_steps=1, **SHORT)
     obs, _ = env.reset(seed=0)
     assert not obs["image"].any()  # nothing seen yet: no iteration before the first step
     assert not obs["vector"][[VectorField.OUTCOME_CONSISTENT, VectorField.OUTCOME_RESTART]].any()
@@ -235,13 +235,13 @@ def test_step_outside_an_episode_raises() -> None:
 @pytest.mark.filterwarnings("ignore:.*render_mode")  # gymnasium warns before the env raises
 def test_bad_kwargs_name_the_offending_key(kwargs: dict, match: str) -> None:
     with pytest.raises(ValueError, match=match):
-        gymnasium.make(branch_gym.ENV_ID, **kwargs)
+        gymnasium.make(branch_gym.ENV_ID_V0, **kwargs)
 
 
 def test_discrete_angles_must_lie_within_theta_max() -> None:
     with pytest.raises(ValueError, match="discrete_angles_deg"):
-        gymnasium.make(branch_gym.DISCRETE_ENV_ID, theta_max_deg=30.0)
-    gymnasium.make(branch_gym.ENV_ID, theta_max_deg=30.0).close()  # unused by a continuous env
+        gymnasium.make(branch_gym.DISCRETE_ENV_ID_V0, theta_max_deg=30.0)
+    gymnasium.make(branch_gym.ENV_ID_V0, theta_max_deg=30.0).close()  # unused by a continuous env
 
 
 def test_tree_presets_and_reset_options() -> None:

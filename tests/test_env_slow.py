@@ -40,7 +40,7 @@ _COMPARED = (
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    ("env_id", "tracker"), [(branch_gym.ENV_ID, "lk"), (branch_gym.DISCRETE_ENV_ID, "oracle")]
+    ("env_id", "tracker"), [(branch_gym.ENV_ID_V0, "lk"), (branch_gym.DISCRETE_ENV_ID_V0, "oracle")]
 )
 def test_periodic_agent_scans_alike_in_every_action_type(env_id: str, tracker: str) -> None:
     config = ScanConfig(tracker=tracker, end_height_m=0.45)
@@ -67,7 +67,7 @@ def test_periodic_agent_scans_alike_in_every_action_type(env_id: str, tracker: s
 def test_async_vector_env_runs_with_autoreset_and_a_batched_agent() -> None:
     n_envs, n_steps = 2, 100
     envs = gymnasium.make_vec(
-        branch_gym.ENV_ID,
+        branch_gym.ENV_ID_V0,
         num_envs=n_envs,
         vectorization_mode="async",
         tracker="oracle",
@@ -134,7 +134,7 @@ def test_sb3_ppo_learns_from_the_dict_observation_with_its_cnn() -> None:
     from stable_baselines3 import PPO
 
     env = gymnasium.make(
-        branch_gym.DISCRETE_ENV_ID,
+        branch_gym.DISCRETE_ENV_ID_V0,
         tracker="oracle",
         end_height_m=0.32,
         theta_max_deg=4.0,

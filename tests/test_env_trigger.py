@@ -54,13 +54,13 @@ def test_trigger_angles_are_validated_for_trigger_envs() -> None:
         gymnasium.make(branch_gym.TRIGGER_ENV_ID, theta_max_deg=30.0)  # 45 > 30
     with pytest.raises(ValueError, match="trigger_angles_deg"):
         gymnasium.make(branch_gym.TRIGGER_ENV_ID, trigger_angles_deg=(0.0,))
-    gymnasium.make(branch_gym.ENV_ID, theta_max_deg=30.0).close()  # not a trigger env: fine
+    gymnasium.make(branch_gym.ENV_ID_V0, theta_max_deg=30.0).close()  # not a trigger env: fine
 
 
 def test_periodic_agent_in_the_trigger_env_makes_the_same_scan() -> None:
     """The paper's controller expressed as triggers rotates exactly as with target angles."""
     results = {}
-    for env_id in (branch_gym.ENV_ID, branch_gym.TRIGGER_ENV_ID):
+    for env_id in (branch_gym.ENV_ID_V0, branch_gym.TRIGGER_ENV_ID):
         env = gymnasium.make(env_id, **SHORT)
         agent = PeriodicAgent.for_env(env, *PERIODIC)
         obs, _ = env.reset(seed=4)

@@ -56,7 +56,7 @@ def test_the_price_sets_the_time_term_and_is_drawn_per_episode() -> None:
                 env.reset(seed=1, options={"branch_value_s": outside})
     finally:
         env.close()
-    v0 = gymnasium.make(branch_gym.ENV_ID, **SHORT)
+    v0 = gymnasium.make(branch_gym.ENV_ID_V0, **SHORT)
     with pytest.raises(ValueError, match="branch_value_s"):
         v0.reset(seed=0, options={"branch_value_s": 50.0})
     v0.close()

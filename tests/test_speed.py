@@ -89,7 +89,7 @@ def test_contact_skipping_keeps_the_trajectory():
 
 def test_score_cache_equals_fresh_scores():
     env = gymnasium.make(
-        branch_gym.ENV_ID, tracker="oracle", render_tracking_frames=False, end_height_m=0.4
+        branch_gym.ENV_ID_V0, tracker="oracle", render_tracking_frames=False, end_height_m=0.4
     )
     env = FixedActionMix(env)
     cache = ScoreCache()

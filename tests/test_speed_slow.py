@@ -23,7 +23,7 @@ MEMORY_END_HEIGHT_M = 0.30  # short random-action episodes: ~4 steps each (our c
 
 
 def _final(scan, score_cache: bool, seed: int) -> dict:
-    env = FixedActionMix(gymnasium.make(branch_gym.ENV_ID, scan=scan, score_cache=score_cache))
+    env = FixedActionMix(gymnasium.make(branch_gym.ENV_ID_V0, scan=scan, score_cache=score_cache))
     env.reset(seed=seed)
     done, info = False, {}
     while not done:
@@ -55,7 +55,7 @@ def _rss_mb() -> float:
 @pytest.mark.skipif(not os.path.exists("/proc/self/statm"), reason="needs /proc")
 def test_random_episodes_do_not_grow_memory():
     env = gymnasium.make(
-        branch_gym.ENV_ID,
+        branch_gym.ENV_ID_V0,
         tracker="oracle",
         render_tracking_frames=False,
         end_height_m=MEMORY_END_HEIGHT_M,

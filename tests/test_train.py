@@ -218,7 +218,7 @@ def test_init_logit_scale_sharpens_sampling_and_keeps_the_argmax() -> None:
 
 
 def test_policy_class_follows_the_observation_space() -> None:
-    env = gymnasium.make(branch_gym.ENV_ID, **SHORT)
+    env = gymnasium.make(branch_gym.ENV_ID_V0, **SHORT)
     flat = gymnasium.make(branch_gym.FLAT_ENV_ID, **SHORT)
     try:
         assert policy_class(env.observation_space) == DICT_POLICY
@@ -310,7 +310,7 @@ def check_first_run(paths: RunPaths) -> None:
 def check_loaded_model_acts(paths: RunPaths) -> None:
     agent = load_policy(paths.final_model)
     assert isinstance(agent, PolicyAgent)
-    env = gymnasium.make(branch_gym.ENV_ID, **SHORT)
+    env = gymnasium.make(branch_gym.ENV_ID_V0, **SHORT)
     obs, _ = env.reset(seed=EVAL_SEED_BASE)
     env.close()
     action, state = agent.predict(obs, deterministic=True)
@@ -352,14 +352,14 @@ def test_flat_env_with_vecnormalize_resumes_and_acts_in_the_dict_env(tmp_path: P
     result = train(longer, out, resume=True)
     assert (result.start_timesteps, result.num_timesteps) == (32, 64)
     assert read_checkpoint(RunPaths(out)).vecnormalize == "model_000000064_vecnormalize.pkl"
-    env = gymnasium.make(branch_gym.ENV_ID, **SHORT)  # Dict observations
+    env = gymnasium.make(branch_gym.ENV_ID_V0, **SHORT)  # Dict observations
     try:
         agent = make_agent(f"ppo:{result.final_model}", env)
         assert agent.normalizer is not None and agent.flatten_dict
         obs, _ = env.reset(seed=EVAL_SEED_BASE)
         action, _ = agent.predict(obs)
         assert env.action_space.contains(action.astype(np.float32))
-        discrete = gymnasium.make(branch_gym.DISCRETE_ENV_ID, **SHORT)
+        discrete = gymnasium.make(branch_gym.DISCRETE_ENV_ID_V0, **SHORT)
         with pytest.raises(ValueError, match="Discrete"):
             make_agent(f"ppo:{result.final_model}", discrete)
         discrete.close()

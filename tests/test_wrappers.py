@@ -50,14 +50,14 @@ def _assert_obs_equal(a, b) -> None:
 @pytest.fixture(scope="module")
 def plain_episode() -> tuple[list, list[float], list[dict]]:
     """The reference: BranchScan-v0 without extra wrappers, tree seed 5."""
-    env = gymnasium.make(branch_gym.ENV_ID, **SHORT)
+    env = gymnasium.make(branch_gym.ENV_ID_V0, **SHORT)
     episode = _episode(env, 5)
     env.close()
     return episode
 
 
 def test_flatten_observation_concatenates_image_then_vector(plain_episode) -> None:
-    env = FlattenObservation(gymnasium.make(branch_gym.ENV_ID, **SHORT))
+    env = FlattenObservation(gymnasium.make(branch_gym.ENV_ID_V0, **SHORT))
     assert env.observation_space.shape == (IMAGE_SIZE + VECTOR_SIZE,)
     observations, rewards, _ = _episode(env, 5)
     assert rewards == plain_episode[1]
@@ -73,7 +73,7 @@ def test_flatten_observation_concatenates_image_then_vector(plain_episode) -> No
     )
 
 
-@pytest.mark.parametrize("env_id", [branch_gym.ENV_ID, branch_gym.FLAT_ENV_ID])
+@pytest.mark.parametrize("env_id", [branch_gym.ENV_ID_V0, branch_gym.FLAT_ENV_ID])
 def test_frame_stack_holds_the_last_observations(env_id: str, plain_episode) -> None:
     stack = 3
     env = FrameStackObservation(gymnasium.make(env_id, **SHORT), stack)
@@ -99,7 +99,7 @@ def test_frame_stack_holds_the_last_observations(env_id: str, plain_episode) -> 
 
 
 def test_record_episode_statistics_reports_return_and_length(plain_episode) -> None:
-    env = RecordEpisodeStatistics(gymnasium.make(branch_gym.ENV_ID, **SHORT))
+    env = RecordEpisodeStatistics(gymnasium.make(branch_gym.ENV_ID_V0, **SHORT))
     _, rewards, infos = _episode(env, 5)
     assert rewards == plain_episode[1]
     assert all("episode" not in info for info in infos[:-1])
@@ -114,7 +114,7 @@ def test_record_episode_statistics_reports_return_and_length(plain_episode) -> N
 
 def test_spec_and_kwargs_round_trip_through_make(plain_episode) -> None:
     kwargs = {**SHORT, "tree": "hard", "reward": {"match_reward": 2.0}, "speed_mps": 0.03}
-    env = gymnasium.make(branch_gym.ENV_ID, render_mode="rgb_array", max_episode_steps=50, **kwargs)
+    env = gymnasium.make(branch_gym.ENV_ID_V0, render_mode="rgb_array", max_episode_steps=50, **kwargs)
     assert env.spec.kwargs == {"action_type": "continuous", "render_mode": "rgb_array", **kwargs}
     # From the spec object, and from its JSON text (kwargs made of JSON values).
     for spec in (env.spec, EnvSpec.from_json(env.spec.to_json())):
@@ -126,7 +126,7 @@ def test_spec_and_kwargs_round_trip_through_make(plain_episode) -> None:
     env.close()
     # Wrappers are part of the spec: make(spec) rebuilds them around an equal env.
     wrapped = RecordEpisodeStatistics(
-        FrameStackObservation(gymnasium.make(branch_gym.ENV_ID, **SHORT), 2)
+        FrameStackObservation(gymnasium.make(branch_gym.ENV_ID_V0, **SHORT), 2)
     )
     names = [w.name for w in wrapped.spec.additional_wrappers]
     assert names == ["FrameStackObservation", "RecordEpisodeStatistics"]
@@ -140,7 +140,7 @@ def test_spec_and_kwargs_round_trip_through_make(plain_episode) -> None:
     wrapped.close()
     # Kwargs that are objects (not JSON) still round trip through the spec object.
     tree = TreeConfig(secondary_count_range=(1, 1))
-    custom = gymnasium.make(branch_gym.ENV_ID, tree=tree, **SHORT)
+    custom = gymnasium.make(branch_gym.ENV_ID_V0, tree=tree, **SHORT)
     assert gymnasium.make(custom.spec).unwrapped.config.scan.world.tree == tree
     custom.close()
 
@@ -155,7 +155,7 @@ def test_sync_and_async_vector_envs_step_identically() -> None:
     runs = {}
     for mode in ("sync", "async"):
         envs = gymnasium.make_vec(
-            branch_gym.ENV_ID, num_envs=num_envs, vectorization_mode=mode, **SHORT
+            branch_gym.ENV_ID_V0, num_envs=num_envs, vectorization_mode=mode, **SHORT
         )
         obs, info = envs.reset(seed=[3, 4])
         trace = [(obs, info["seed"])]

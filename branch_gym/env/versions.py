@@ -72,6 +72,11 @@ OBSERVATION_FEATURES = {
 _V0 = ("image", "vector")
 _V1 = (*_V0, "coverage", "price")
 _V2 = (*_V1, "in_front")
+# The Flat and Trigger ids have one version: what they lack of the newest BranchScan ids.
+_AT_V0 = (
+    "at v0: the v0 observation (no coverage memory, price or IN_FRONT channel) and the paper's "
+    "reward scoring"
+)
 _ID = re.compile(r"^(?P<name>[A-Za-z]+)-v(?P<version>\d+)$")
 
 
@@ -85,12 +90,15 @@ class EnvVersion:
         features: The observation's parts (keys of :data:`OBSERVATION_FEATURES`).
         change: What this version changed against the previous one of its name (the Version
             History line).
+        note: Said after "current" in the table: what a current id lacks of the newest
+            features (the Flat and Trigger ids stayed at v0).
     """
 
     env_id: str
     action_type: str
     features: tuple[str, ...]
     change: str
+    note: str = ""
 
     def __post_init__(self) -> None:
         if _ID.match(self.env_id) is None:
@@ -131,8 +139,14 @@ class EnvVersion:
 ENV_VERSIONS: tuple[EnvVersion, ...] = (
     EnvVersion("BranchScan-v0", "continuous", _V0, "initial: the pipeline's state"),
     EnvVersion("BranchScanDiscrete-v0", "discrete", _V0, "initial"),
-    EnvVersion("BranchScanFlat-v0", "continuous", ("flat",), "initial (MLP-only libraries)"),
-    EnvVersion("BranchScanTrigger-v0", "trigger", _V0, "initial"),
+    EnvVersion(
+        "BranchScanFlat-v0",
+        "continuous",
+        ("flat",),
+        "initial (MLP-only libraries)",
+        note=_AT_V0,
+    ),
+    EnvVersion("BranchScanTrigger-v0", "trigger", _V0, "initial", note=_AT_V0),
     EnvVersion(
         "BranchScan-v1",
         "continuous",
@@ -168,6 +182,18 @@ def env_version(env_id: str) -> EnvVersion:
     raise ValueError(f"unknown env id {env_id!r}: expected one of {ENV_IDS}")
 
 
+def current_env_id(name: str) -> str:
+    """The current (newest) id of a name: ``current_env_id("BranchScan")`` -> ``BranchScan-vN``.
+
+    Raises:
+        ValueError: no registered id has this name (named, with the ids).
+    """
+    versions = [v for v in ENV_VERSIONS if v.name == name]
+    if not versions:
+        raise ValueError(f"no env id is named {name!r}: expected one of {ENV_IDS}")
+    return max(versions, key=lambda v: v.version).env_id
+
+
 def register_envs() -> None:
     """Register every id with Gymnasium (idempotent: re-imports and reloads are fine)."""
     for version in ENV_VERSIONS:
@@ -186,6 +212,8 @@ def markdown_table() -> str:
     for version in ENV_VERSIONS:
         observation = " + ".join(OBSERVATION_FEATURES[f][0] for f in version.features)
         status = "retired (kept registered)" if version.retired else "current"
+        if version.note and not version.retired:
+            status += f", {version.note}"
         rows.append(
             f"| `{version.env_id}` | {ACTION_DESCRIPTIONS[version.action_type]} | "
             f"{observation} | {status} |"

@@ -12,7 +12,7 @@ from typing import Any
 
 from gymnasium import spaces
 
-from branch_gym import ENV_ID, ENV_IDS
+from branch_gym import ENV_ID_V0, ENV_IDS
 from branch_gym.config_utils import check_keys, flatten_dict, is_number
 from branch_gym.env.config import env_config_from_kwargs
 from branch_gym.env.reward import RewardConfig
@@ -112,7 +112,8 @@ class TrainConfig:
     """One PPO training run on a ``BranchScan`` environment.
 
     Attributes:
-        env_id: A registered id (``branch_gym.ENV_IDS``); Dict observations get SB3's
+        env_id: A registered id (``branch_gym.ENV_IDS``; default ``BranchScan-v0``, the id the
+            recipes before v1 ran; ``configs/*.json`` name theirs); Dict observations get SB3's
             ``MultiInputPolicy``, the flat one ``MlpPolicy`` (``MultiInputLstmPolicy`` and
             ``MlpLstmPolicy`` when ``recurrent``).
         timesteps: Total environment steps to reach (a resumed run counts the steps done
@@ -171,7 +172,7 @@ class TrainConfig:
         ppo: PPO hyper-parameters.
     """
 
-    env_id: str = ENV_ID
+    env_id: str = ENV_ID_V0
     timesteps: int = 100_000
     n_envs: int = 1
     seed: int = 0
