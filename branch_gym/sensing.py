@@ -1,7 +1,7 @@
 """Sensing: the world's camera images -> a segmented, timestamped :class:`recon.Frame`.
 
 This is the one place where the simulator meets the pipeline's input format. A real robot does
-the same with its camera driver and segmenter (``recon/replay.py`` reads recorded frames).
+the same with its camera driver and segmenter (``recon.replay`` reads recorded frames).
 
 =========================  =====================================================================
 segmenter spec             mask from (:class:`SimSegmenterSpec`)

@@ -1,0 +1,132 @@
+"""What a replay reads besides the frames: its segmenter, tracker, modeler settings, ground truth
+and working focal length.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import logging
+from dataclasses import fields
+from pathlib import Path
+from typing import ClassVar
+
+from recon.config import REMOVED_MODELER_FIELDS, ModelerConfig, removed_field_message
+from recon.io.folder import ScanFormatError
+from recon.io.rescale import PIPELINE_FOCAL_PX, RescaledSource
+from recon.io.source import ScanSource
+from recon.model import TreeModel
+from recon.segmentation.spec import SegmenterSpec, SpecKind, is_learned_segmenter
+
+logger = logging.getLogger(__name__)
+
+TRACKERS = ("lk",)
+"""The trackers a recording can run (:func:`recon.tracking.make_tracker`; it has no depth for the
+oracle)."""
+
+
+class ReplayError(RuntimeError):
+    """The replay cannot run (no masks and no segmenter, segmenter missing, ...)."""
+
+
+class ReplaySegmenterSpec(SegmenterSpec):
+    """A replay's segmenter spec: ``mask`` (the recording's masks) or recon's ``learned[:PATH]``."""
+
+    KINDS: ClassVar = {"mask": SpecKind(), **SegmenterSpec.KINDS}
+
+
+def load_segmenter(spec: str | None):
+    """None for masks from the recording; ``learned`` / ``learned:PATH`` -> recon.segmentation.
+
+    Returns:
+        None, or an object with ``segment(rgb, previous_rgb=None) -> (H, W) bool`` (a
+        :class:`recon.segmentation.LearnedSegmenter`).
+
+    Raises:
+        ValueError: an unknown spec.
+        ReplayError: ``recon.segmentation`` (the learned RGB segmenter) is not available.
+    """
+    if spec is None:
+        return None
+    parsed = ReplaySegmenterSpec.parse(spec)
+    if not parsed.is_learned:
+        return None
+    try:
+        module = importlib.import_module("recon.segmentation")
+    except ImportError as error:
+        raise ReplayError(
+            f"--segmenter {spec} needs the learned RGB segmenter (recon.segmentation), which "
+            f"cannot be imported here ({error})"
+        ) from error
+    loader = getattr(module, "load_segmenter", None)
+    if loader is None:
+        raise ReplayError(
+            f"--segmenter {spec}: recon.segmentation has no load_segmenter(spec) in this "
+            "checkout (the learned segmenter is not available yet)"
+        )
+    return loader(str(parsed))
+
+
+def modeler_settings(
+    metadata: dict, seed: int | None, config: ModelerConfig | None
+) -> tuple[int, ModelerConfig]:
+    """The seed and config: explicit values, else the recording's metadata, else defaults.
+
+    A recorded field that has been removed since (:data:`recon.config.REMOVED_MODELER_FIELDS`)
+    is dropped, with a warning naming it where the recording ran another value than today's
+    code runs.
+    """
+    recorded = metadata.get("modeler", {}) if isinstance(metadata, dict) else {}
+    if seed is None:
+        seed = int(recorded.get("seed", 0))
+    if config is None:
+        values = recorded.get("config") or {}
+        for name in sorted(set(values) & set(REMOVED_MODELER_FIELDS)):
+            if values[name] != REMOVED_MODELER_FIELDS[name].value:
+                logger.warning("the recording ran %s=%r: %s", name, values[name],
+                               removed_field_message(name))  # fmt: skip
+        known = {f.name for f in fields(ModelerConfig)}
+        unknown = sorted(set(values) - known - set(REMOVED_MODELER_FIELDS))
+        if unknown:
+            logger.warning("ignoring unknown recorded ModelerConfig fields %s", unknown)
+        config = ModelerConfig(**{k: v for k, v in values.items() if k in known})
+    return seed, config
+
+
+def learned_masks(source: ScanSource) -> bool:
+    """The recorded masks come from a learned segmenter (a branch_gym recording says so)."""
+    scan = source.metadata.get("scan", {}) if isinstance(source.metadata, dict) else {}
+    return isinstance(scan, dict) and is_learned_segmenter(scan.get("segmenter"))
+
+
+def load_truth(path: str | Path) -> TreeModel:
+    """Ground truth JSON (branch_gym's TreeGT: ``primary`` and ``secondaries`` with points/radii).
+
+    Raises:
+        ScanFormatError: unreadable, or no primary branch.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+        truth = TreeModel.from_dict(data)
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise ScanFormatError(f"{path}: cannot read ground truth ({error})") from None
+    if truth.primary is None:
+        raise ScanFormatError(f"{path}: ground truth has no primary branch")
+    return truth
+
+
+def at_working_focal_length(
+    source: ScanSource, focal_px: float | str | None, segmenter: str | object | None
+) -> ScanSource:
+    """``source`` resized to the working focal length of :func:`replay` (its docstring)."""
+    if focal_px == "auto":
+        learned = isinstance(segmenter, str) and is_learned_segmenter(segmenter)
+        focal_px = PIPELINE_FOCAL_PX if learned else None
+    if focal_px is None:
+        return source
+    if isinstance(focal_px, str):
+        raise ValueError(f"working_focal_px must be a number, 'auto' or None, got {focal_px!r}")
+    rescaled = RescaledSource(source, focal_px)
+    intrinsics = source.intrinsics
+    return source if rescaled.size == (intrinsics.width, intrinsics.height) else rescaled
