@@ -26,13 +26,18 @@ from branch_gym.env.layout import (
     TRIGGER_ANGLES_DEG,
 )
 from branch_gym.env.reward import RewardConfig
-from branch_gym.scan import ScanConfig
+from branch_gym.scan import ScanConfig, leader_scan_config
 from branch_gym.sim.tree.config import TreeConfig
 from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.validation import require_int, require_positive
 from branch_gym.sim.world import WORLDS, WorldConfig
 
-TREE_PRESETS = ("paper", "cluttered", "hard", "tall_spindle", "ufo")
+TREE_PRESETS = ("paper", "cluttered", "hard", "tall_spindle", "ufo", "tall_spindle_leader")
+# Tree presets scanned over a stretch of their own: choosing one also sets the scan's start and
+# end heights and the robot's base (docs/worlds.md, "A longer stretch").
+STRETCH_PRESETS: dict[str, Callable[[ScanConfig], ScanConfig]] = {
+    "tall_spindle_leader": leader_scan_config,
+}
 RESET_OPTIONS = ("tree", "branch_value_s")
 SCAN_SHORTCUTS = (
     "world",
@@ -197,6 +202,21 @@ def tree_config(tree: str | TreeConfig) -> TreeConfig:
     raise ValueError(f"tree must be one of {TREE_PRESETS} or a TreeConfig, got {tree!r}")
 
 
+def scan_with_tree(scan: ScanConfig, tree: str | TreeConfig) -> ScanConfig:
+    """``scan`` with the tree ``tree`` (a preset name or a TreeConfig).
+
+    A preset in :data:`STRETCH_PRESETS` also sets the scan's start and end heights and the
+    robot's base for its stretch; any other tree keeps ``scan``'s.
+
+    Raises:
+        ValueError: an unknown tree (see :func:`tree_config`).
+    """
+    config = tree_config(tree)
+    if isinstance(tree, str) and tree in STRETCH_PRESETS:
+        return STRETCH_PRESETS[tree](scan)
+    return replace(scan, world=replace(scan.world, tree=config))
+
+
 def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
     """Parse the environment's keyword arguments (see the module docstring).
 
@@ -224,8 +244,7 @@ def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
             raise ValueError(f"world must be one of {WORLDS}, got {name!r}")
         scan = replace(scan, world=WorldConfig.preset(name, tree=scan.world.tree))
     if "tree" in shortcuts:
-        tree = tree_config(shortcuts.pop("tree"))
-        scan = replace(scan, world=replace(scan.world, tree=tree))
+        scan = scan_with_tree(scan, shortcuts.pop("tree"))
     for key, valid_type in (("tracker", str), ("segmenter", str)):
         if key in shortcuts and not isinstance(shortcuts[key], valid_type):
             raise ValueError(f"{key} must be a str, got {shortcuts[key]!r}")

@@ -1,9 +1,8 @@
 """Evaluate rotation policies on simulated trees and compare with the paper's Table I.
 
-The command line of :func:`branch_gym.evaluation.pipeline.run_evaluation`. The policies and the
-paper's columns are handed in by the command that composes it (:mod:`agents.commands`:
-``eval.py`` at the repository root and the installed ``branch-gym-eval``), where ``ppo:NAME``
-plays a shipped model (``ppo:ppo_dagger_v2@100``).
+The command line of :func:`branch_gym.evaluation.pipeline.run_evaluation` (``eval.py`` at the
+repository root and the installed ``branch-gym-eval``). ``ppo:NAME`` plays a shipped model
+(``ppo:ppo_dagger_v2@100``).
 
 Usage::
 
@@ -31,13 +30,13 @@ import argparse
 import logging
 import sys
 import traceback
-from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
 from tqdm import tqdm
 
-from branch_gym.env.config import TREE_PRESETS, tree_config
+from agents.ppo import shipped_models
+from branch_gym.env.config import TREE_PRESETS, scan_with_tree
 from branch_gym.evaluation.config import EvalConfig, TrialError
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.ray_backend import (
@@ -47,7 +46,6 @@ from branch_gym.evaluation.ray_backend import (
 )
 from branch_gym.evaluation.report import failure_reasons, format_comparison
 from branch_gym.evaluation.runner import ConfigMismatchError
-from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WORLDS, WorldConfig
 from recon.config import add_modeler_argument, modeler_overrides
@@ -58,8 +56,7 @@ ERROR_LOG = "error.log"  # under --out: the traceback of a trial that raised
 EXIT_INTERRUPTED = 130
 
 
-def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
-    """The options; ``factory.spec_forms`` lists the policy specs in ``--help``."""
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n", 1)[0],
         epilog="Trials already saved in --out (same policy, seed and scan configuration) are "
@@ -71,7 +68,10 @@ def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
         nargs="+",
         required=True,
         metavar="SPEC",
-        help=f"rotation policies (table columns, in this order): {factory.spec_forms}",
+        help="rotation policies (table columns, in this order): none | periodic:ANGLE_DEG:FREQ "
+        "| ftl:ANGLE_DEG:PAN_FREQ "
+        "| disagreement[:ANGLE_DEG] | privileged | ppo:PATH_OR_SHIPPED_NAME[@SECONDS] (shipped: "
+        f"{', '.join(shipped_models())})",
     )
     parser.add_argument("--trees", type=int, default=60, help="trees per policy (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="first tree seed (default 0)")
@@ -117,20 +117,9 @@ def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
     return parser
 
 
-def main(
-    argv: list[str] | None,
-    factory: PolicyFactory,
-    paper_column: Callable[[str], dict | None],
-) -> int:
-    """Run the command line; returns the exit status.
-
-    Args:
-        argv: The arguments (None: ``sys.argv[1:]``).
-        factory: Reads the policy specs (``agents.factory.AGENTS``).
-        paper_column: A spec -> the paper's Table I column printed beside it, or None
-            (``agents.paper.paper_column``).
-    """
-    parser = build_parser(factory)
+def main(argv: list[str] | None = None) -> int:
+    """Run the command line; returns the exit status."""
+    parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     changes = {
@@ -140,10 +129,8 @@ def main(
         "end_height_m": args.end_height,
     }
     try:
-        world = WorldConfig.preset(args.world, tree=tree_config(args.tree))
-        scan = ScanConfig(world=world).replace(
-            **{k: v for k, v in changes.items() if v is not None}
-        )
+        scan = scan_with_tree(ScanConfig(world=WorldConfig.preset(args.world)), args.tree)
+        scan = scan.replace(**{k: v for k, v in changes.items() if v is not None})
         if args.modeler:
             scan = scan.replace(modeler=replace(scan.modeler, **modeler_overrides(args.modeler)))
         config = EvalConfig(
@@ -155,7 +142,6 @@ def main(
             backend=args.backend,
             address=args.address,
             record_dir=args.record,
-            policy_factory=factory,
         )
     except (ValueError, TypeError) as exc:
         parser.error(str(exc))
@@ -205,7 +191,11 @@ def main(
     loaded = len(outcome.records) - len(outcome.computed)
     print(f"\n{len(outcome.computed)} trials run, {loaded} loaded from {args.out / 'trials'}")
     print("\nOurs next to the paper's Table I (simulated, 60 trials per column):\n")
-    print(format_comparison(outcome.summary, paper_column))
+    print(format_comparison(outcome.summary))
     print(f"\nFailure reasons: {failure_reasons(outcome.records, config.policies)}")
     print("\nwrote " + ", ".join(str(path) for path in outcome.files))
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

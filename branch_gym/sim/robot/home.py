@@ -50,6 +50,11 @@ if TYPE_CHECKING:
 SCAN_START_HEIGHT_M = 0.275
 SCAN_END_HEIGHT_M = 0.75
 Z_TARGET_M = 0.20
+# A longer scan of a tall-spindle leader at its real height (TreeConfig.tall_spindle_leader,
+# docs/worlds.md "A longer stretch"): 0.80 m of the fruiting zone, 0.70 -> 1.50 m, from the arm
+# lifted on a platform (BasePlacement.platform).
+LEADER_SCAN_START_HEIGHT_M = 0.70
+LEADER_SCAN_END_HEIGHT_M = 1.50
 # The camera looks along +y at the tree from the -y side (sim/tree/generator.py convention).
 VIEW_DIRECTION_WORLD = np.array([0.0, 1.0, 0.0])
 _WORLD_UP = np.array([0.0, 0.0, 1.0])
@@ -87,6 +92,26 @@ class BasePlacement:
             math.isfinite(v) for v in self.home_seed_q_deg
         ):
             raise ValueError(f"home_seed_q_deg must be 6 finite angles, got {self.home_seed_q_deg}")
+
+    @classmethod
+    def platform(cls) -> BasePlacement:
+        """The arm lifted on an orchard platform for the leader scan (0.70 -> 1.50 m).
+
+        Same place behind the branch as the default, 0.60 m higher: the scan's heights sit
+        where the default's do relative to the shoulder, extended 0.175 m below and above
+        (the default scans 0.075-0.55 m above its base, this one -0.10-0.70 m). Measured with
+        :func:`sweep_scan_workspace` (``tests/test_long_leader.py``): over 0.70-1.50 m x
+        rotations -45..45 deg x branch offsets x +-0.10 m, y +-0.05 m every pose is reachable,
+        elbow-up and contact-free with ``|det J|`` >= 0.069 (the default's >= 0.055 over its
+        range); the generated leaders stray at most 4 cm from the start's vertical. The home
+        seed is the IK solution at 0.70 m from the default seed (measured). A platform deck at
+        0.60 m with the default 0.20 m column: orchard platforms carry pickers and pruners at
+        deck heights of ~0.5-2 m (our choice within that).
+        """
+        return cls(
+            position_m=(0.0, -0.80, 0.80),
+            home_seed_q_deg=(13.8, -180.7, -86.5, -2.8, -90.0, -13.8),
+        )
 
     @property
     def T_world_base(self) -> np.ndarray:

@@ -15,6 +15,11 @@ YAW_MODES = ("uniform", "toward_camera", "away_from_camera", "toward_or_away_cam
 ARCHITECTURES = ("paper", "tall_spindle", "ufo")
 # Instance labels 2 + i must stay below the first clutter label 100 (label-image convention).
 _MAX_SECONDARIES = 98
+# The tall-spindle leader preset (TreeConfig.tall_spindle_leader, sources in its docstring):
+# branches from 0.60 m (feathers below 60 cm removed) to 1.75 m (a FoV above the 1.50 m scan
+# top, so the top frames look as a taller tree's), 11-18 of them: 9.6-15.7 per metre.
+LEADER_SECONDARY_BASE_HEIGHT_RANGE_M = (0.60, 1.75)
+LEADER_SECONDARY_COUNT_RANGE = (11, 18)
 
 
 @dataclass(frozen=True)
@@ -26,7 +31,8 @@ class TreeConfig:
     from +x toward +y; elevation is the angle above the horizontal plane.
 
     Presets: :meth:`paper` (the defaults), :meth:`cluttered` and :meth:`hard` (the paper's tree
-    with clutter), and two modern orchard architectures, :meth:`tall_spindle` and :meth:`ufo`.
+    with clutter), and two modern orchard architectures, :meth:`tall_spindle` and :meth:`ufo`;
+    :meth:`tall_spindle_leader` is a tall-spindle leader at full height for a longer scan.
     """
 
     # Which tree this distribution models (one of ARCHITECTURES): a label for the world that
@@ -66,6 +72,14 @@ class TreeConfig:
     secondary_bend_steps: int = 10  # upward bending steps (authors' code: 10)
     # Upward bending strength per metre (authors' code: phototropism coefficient U(0, 2)).
     secondary_bend_strength_range_per_m: tuple[float, float] = (0.0, 2.0)
+
+    # Alley side cut back (a hedged fruiting wall): branches pointing within
+    # alley_side_half_angle_deg of the camera's side end where they leave this horizontal
+    # distance from their base, so the arm scanning at z_target passes. None: no cut (the
+    # paper's branches, <= 15 cm, never reach the camera 20 cm away).
+    alley_side_reach_m: float | None = None
+    # The camera's side: the paper's largest rotation (45 deg) plus a margin (our choice).
+    alley_side_half_angle_deg: float = 70.0
 
     # --- clutter (harder variants; off in the paper's world) ---
     background_tree_count_range: tuple[int, int] = (0, 0)
@@ -130,6 +144,17 @@ class TreeConfig:
             "must be in (0, 1]",
         )
         _require(0 <= self.yaw_spread_deg <= 180, "yaw_spread_deg", "must be in [0, 180]")
+        reach_m = self.alley_side_reach_m
+        _require(
+            reach_m is None or (np.isfinite(reach_m) and reach_m > 0),
+            "alley_side_reach_m",
+            f"must be None or positive, got {reach_m}",
+        )
+        _require(
+            0 <= self.alley_side_half_angle_deg <= 180,
+            "alley_side_half_angle_deg",
+            "must be in [0, 180]",
+        )
         _require(self.yaw_mode in YAW_MODES, "yaw_mode", f"must be one of {YAW_MODES}")
         _require(
             self.architecture in ARCHITECTURES,
@@ -234,6 +259,40 @@ class TreeConfig:
             secondary_radius_scale_range=(0.3, 0.5),
             secondary_tip_radius_fraction=0.6,  # longer branches, more taper: our choice
             secondary_bend_strength_range_per_m=(0.0, 1.0),  # mild bending: our choice
+        )
+
+    @classmethod
+    def tall_spindle_leader(cls) -> TreeConfig:
+        """A full-height tall-spindle leader, scanned over 0.80 m of its fruiting zone.
+
+        The tree stands on the ground at its real height; the scan covers the leader from
+        :data:`branch_gym.sim.robot.home.LEADER_SCAN_START_HEIGHT_M` (0.70 m) to
+        ``LEADER_SCAN_END_HEIGHT_M`` (1.50 m), from an arm lifted on a platform
+        (``BasePlacement.platform()``); ``branch_gym.scan.leader_scan_config`` sets all three.
+        Sources (docs/worlds.md, "A longer stretch"): the leader is ~3 m tall (Robinson 2007,
+        Robinson et al. 2011), feathers below 60 cm are removed at planting (Cornell training
+        plan), so fruiting branches start at 0.6 m; branches are renewed when they pass half
+        (OMAFRA) to two thirds (Robinson 2010) of the leader's diameter and trained at or
+        below horizontal. Density: 10-15 feathers on the planted nursery tree (Robinson et
+        al. 2011) spread over roughly its first metre of leader above 0.6 m, and the
+        neighbours' ~8-12 per metre of dormant leader (``OrchardRowConfig.branches_per_m``):
+        11-18 branches on the 1.15 m from 0.60 to 1.75 m, 9.6-15.7 per metre (mean 12.6).
+        Branch shape, radius and angles as :meth:`tall_spindle`.
+        """
+        return replace(
+            cls.tall_spindle(),
+            primary_height_m=3.0,  # ~3 m (10 ft) leader (Robinson 2007)
+            primary_radius_reference_height_m=1.1,  # middle of the 0.70-1.50 m scan
+            placement_height_m=0.70,  # the scan's start height: the primary passes (0, 0) there
+            secondary_count_range=LEADER_SECONDARY_COUNT_RANGE,
+            secondary_base_height_range_m=LEADER_SECONDARY_BASE_HEIGHT_RANGE_M,
+            # Bases closer than this share one height (the authors' rule, shorter: spindle
+            # branches spiral up the leader one by one rather than in whorls; our choice).
+            secondary_group_height_m=0.03,
+            # The alley face hedged back to 12 cm from the leader where it faces the robot: the
+            # camera 20 cm away and the wrist behind and below it pass (measured: uncut, 3 of
+            # the first 4 orchard scans ended on a branch touching the flange or wrist).
+            alley_side_reach_m=0.12,
         )
 
     @classmethod

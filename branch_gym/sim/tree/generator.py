@@ -172,10 +172,31 @@ def _sample_secondaries(
             length_m = rng.uniform(*config.secondary_length_range_m)
             base_radius_m = primary_radius_m * rng.uniform(*config.secondary_radius_scale_range)
             strength = rng.uniform(*config.secondary_bend_strength_range_per_m)
-            branches.append(
-                _grow_secondary(config, base, direction, length_m, strength, base_radius_m)
-            )
+            branch = _grow_secondary(config, base, direction, length_m, strength, base_radius_m)
+            branches.append(_cut_back_alley_side(config, branch, yaw))
     return branches
+
+
+def _cut_back_alley_side(config: TreeConfig, branch: BranchGT, yaw_rad: float) -> BranchGT:
+    """``branch`` cut where it leaves ``config.alley_side_reach_m`` of the leader, if it points
+    to the robot's side (yaw within ``alley_side_half_angle_deg`` of the camera direction).
+
+    A hedged fruiting wall: the alley face is cut back so that the scanning camera passes
+    (``TreeConfig.alley_side_reach_m``). No random draw: the tree of a seed keeps every other
+    branch. Returns ``branch`` unchanged when the reach is None or it points elsewhere.
+    """
+    reach_m = config.alley_side_reach_m
+    if reach_m is None:
+        return branch
+    off_camera_deg = (math.degrees(yaw_rad) - _YAW_TOWARD_CAMERA_DEG + 180.0) % 360.0 - 180.0
+    if abs(off_camera_deg) > config.alley_side_half_angle_deg:
+        return branch
+    horizontal_m = np.linalg.norm(branch.points[:, :2] - branch.points[0, :2], axis=1)
+    keep = int(np.searchsorted(horizontal_m > reach_m, True))  # first point beyond the reach
+    if keep >= len(horizontal_m):
+        return branch
+    keep = max(keep, 2)
+    return BranchGT(branch.points[:keep].copy(), branch.radii[:keep].copy())
 
 
 def _grow_secondary(
