@@ -24,7 +24,7 @@ from branch_gym.control import (
     OrbitMove,
     PrimaryBranchController,
 )
-from branch_gym.sensing import TRACKERS, Sensor, check_segmenter_spec, make_tracker
+from branch_gym.sensing import Sensor, check_segmenter_spec
 from branch_gym.sim.robot.home import (
     LEADER_SCAN_END_HEIGHT_M,
     LEADER_SCAN_START_HEIGHT_M,
@@ -34,11 +34,13 @@ from branch_gym.sim.tree.config import TreeConfig
 from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.validation import require_positive
 from branch_gym.sim.world import World, WorldConfig
-from recon.config import ModelerConfig, is_learned_segmenter
+from recon.config import ModelerConfig
 from recon.frame import Frame
 from recon.model import TreeModel
 from recon.modeler import IterationReport, Modeler, Outcome
 from recon.segmentation.flow import FramePairingConfig
+from recon.segmentation.spec import is_learned_segmenter
+from recon.tracking import TRACKERS, make_tracker
 
 logger = logging.getLogger(__name__)
 

@@ -1,8 +1,9 @@
 """Evaluate rotation policies on simulated trees and compare with the paper's Table I.
 
-The command line of :func:`branch_gym.evaluation.pipeline.run_evaluation` (``eval.py`` at the
-repository root and the installed ``branch-gym-eval``). ``ppo:NAME`` plays a shipped model
-(``ppo:ppo_dagger_v2@100``).
+The command line of :func:`branch_gym.evaluation.pipeline.run_evaluation`. The policies and the
+paper's columns are handed in by the command that composes it (:mod:`agents.commands`:
+``eval.py`` at the repository root and the installed ``branch-gym-eval``), where ``ppo:NAME``
+plays a shipped model (``ppo:ppo_dagger_v2@100``).
 
 Usage::
 
@@ -30,12 +31,12 @@ import argparse
 import logging
 import sys
 import traceback
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 
 from tqdm import tqdm
 
-from agents.ppo import shipped_models
 from branch_gym.env.config import TREE_PRESETS, scan_with_tree
 from branch_gym.evaluation.config import EvalConfig, TrialError
 from branch_gym.evaluation.pipeline import run_evaluation
@@ -46,6 +47,7 @@ from branch_gym.evaluation.ray_backend import (
 )
 from branch_gym.evaluation.report import failure_reasons, format_comparison
 from branch_gym.evaluation.runner import ConfigMismatchError
+from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WORLDS, WorldConfig
 from recon.config import add_modeler_argument, modeler_overrides
@@ -56,7 +58,8 @@ ERROR_LOG = "error.log"  # under --out: the traceback of a trial that raised
 EXIT_INTERRUPTED = 130
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
+    """The options; ``factory.spec_forms`` lists the policy specs in ``--help``."""
     parser = argparse.ArgumentParser(
         description=__doc__.split("\n", 1)[0],
         epilog="Trials already saved in --out (same policy, seed and scan configuration) are "
@@ -68,10 +71,7 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         required=True,
         metavar="SPEC",
-        help="rotation policies (table columns, in this order): none | periodic:ANGLE_DEG:FREQ "
-        "| ftl:ANGLE_DEG:PAN_FREQ "
-        "| disagreement[:ANGLE_DEG] | privileged | ppo:PATH_OR_SHIPPED_NAME[@SECONDS] (shipped: "
-        f"{', '.join(shipped_models())})",
+        help=f"rotation policies (table columns, in this order): {factory.spec_forms}",
     )
     parser.add_argument("--trees", type=int, default=60, help="trees per policy (default 60)")
     parser.add_argument("--seed", type=int, default=0, help="first tree seed (default 0)")
@@ -117,9 +117,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Run the command line; returns the exit status."""
-    parser = build_parser()
+def main(
+    argv: list[str] | None,
+    factory: PolicyFactory,
+    paper_column: Callable[[str], dict | None],
+) -> int:
+    """Run the command line; returns the exit status.
+
+    Args:
+        argv: The arguments (None: ``sys.argv[1:]``).
+        factory: Reads the policy specs (``agents.factory.AGENTS``).
+        paper_column: A spec -> the paper's Table I column printed beside it, or None
+            (``agents.paper.paper_column``).
+    """
+    parser = build_parser(factory)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     changes = {
@@ -142,6 +153,7 @@ def main(argv: list[str] | None = None) -> int:
             backend=args.backend,
             address=args.address,
             record_dir=args.record,
+            policy_factory=factory,
         )
     except (ValueError, TypeError) as exc:
         parser.error(str(exc))
@@ -191,11 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     loaded = len(outcome.records) - len(outcome.computed)
     print(f"\n{len(outcome.computed)} trials run, {loaded} loaded from {args.out / 'trials'}")
     print("\nOurs next to the paper's Table I (simulated, 60 trials per column):\n")
-    print(format_comparison(outcome.summary))
+    print(format_comparison(outcome.summary, paper_column))
     print(f"\nFailure reasons: {failure_reasons(outcome.records, config.policies)}")
     print("\nwrote " + ", ".join(str(path) for path in outcome.files))
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
