@@ -43,6 +43,9 @@ __all__ = [
 _CULL_ROTATIONS = 25  # orbit poses tested per side (5 deg apart at 60 deg)
 _WIRE_POINTS = 49  # 0.5 m steps over 24 m: the sag between posts is smooth at that spacing
 _SIGNED_RANGES = ("wire_offset_y_range_m",)  # ranges that may hold negative values
+# OrchardRowConfig.visible_height_m holds for scans up to the paper's 0.75 m; a band reaching
+# higher (the tall-spindle leader's, docs/worlds.md) raises it by as much.
+_PAPER_BAND_TOP_M = 0.75
 # Parts of the row an ablation can leave out (OrchardRowConfig.left_out).
 ROW_PARTS = ("neighbours", "crossing", "wires")
 
@@ -515,7 +518,8 @@ def generate_row(
             base_xy = np.array([x, rng.normal(0.0, 0.02)])
             branches = grow_row_tree(
                 config, rng, base_xy, base_z if ufo else 0.0, radius, height,
-                lateral_only=ufo, max_height_m=config.visible_height_m,
+                lateral_only=ufo,
+                max_height_m=config.visible_height_m + max(0.0, band_m[1] - _PAPER_BAND_TOP_M),
             )  # fmt: skip
             if view is not None:
                 branches = visible_branches(branches, view, config)
