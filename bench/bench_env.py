@@ -34,6 +34,10 @@ the same core:
   taken in turn with the two above: ``env_step_orchard_labels_over_env_step`` is what the
   orchard world itself costs (its background and camera model on every tracking frame), and
   ``env_step_orchard_learned_over_orchard_labels`` what segmenting it from pixels adds.
+* ``env_step_orchard_fast_learned_ms``: the orchard step from pixels in the world
+  ``"orchard_fast"`` (:meth:`~branch_gym.sim.scene.orchard_scene.OrchardConfig.fast`: the
+  speed-ups that change the pixels, for the benchmark's next version), taken in turn with the
+  three above; ``env_step_orchard_fast_learned_over_env_step`` its ratio (target <= 1.6, issue 60).
 * ``env_steps_per_s_mix``: the training mode with the fixed action mix of
   :mod:`bench.action_mix` (one rotation every 10 steps) on ``MIX_SEEDS``
   (``train_over_env_fast_mix_seeds``; ``train_over_env_fast`` compares the training rate with
@@ -178,10 +182,11 @@ def _floor_figures() -> tuple[float, float]:
 def run() -> dict[str, float]:
     with one_core():
         render_ms, iteration_ms = _floor_figures()
-        lk, orchard, orchard_labels = _interleaved(
+        lk, orchard, orchard_labels, orchard_fast = _interleaved(
             {"tracker": "lk"},
             {"tracker": "lk", "world": "orchard", "segmenter": "learned"},
             {"tracker": "lk", "world": "orchard"},
+            {"tracker": "lk", "world": "orchard_fast", "segmenter": "learned"},
         )
         oracle = _episodes("oracle")
         fast = _episodes("oracle", render_tracking_frames=False)
@@ -204,6 +209,8 @@ def run() -> dict[str, float]:
         "env_step_orchard_labels_over_env_step": orchard_labels["step_ms"] / lk["step_ms"],
         "env_step_orchard_learned_over_orchard_labels": orchard["step_ms"]
         / orchard_labels["step_ms"],
+        "env_step_orchard_fast_learned_ms": orchard_fast["step_ms"],
+        "env_step_orchard_fast_learned_over_env_step": orchard_fast["step_ms"] / lk["step_ms"],
         "env_step_floor_ms": floor_ms,
         "env_step_over_floor": lk["step_ms"] / floor_ms,
         "env_step_fast_ms": fast["step_ms"],

@@ -11,6 +11,9 @@ Figures (medians, milliseconds):
 * ``render_frame_orchard_ms``, ``reset_orchard_ms``: the same on the orchard world (sky, row,
   trellis, camera model; issue 31: <= 2x ``render_frame_ms`` of the same run, <= 300 ms), and
   their ratio ``render_orchard_over_clean``.
+* ``render_frame_orchard_fast_ms``: the same frames in the world ``"orchard_fast"`` (the
+  orchard's pixel-changing speed-ups on, ``OrchardConfig.fast``), and
+  ``render_orchard_fast_over_clean`` (issue 60: <= 2).
 
 Only the timed call is measured: the camera motion between frames is not.
 """
@@ -72,7 +75,7 @@ def render_frame_ms(
     Args:
         seeds: Tree seeds (paper-default distribution).
         bare: Render the primary branch alone, without background.
-        world_name: "clean" or "orchard" (``WorldConfig.preset``).
+        world_name: One of ``WORLDS`` (``WorldConfig.preset``).
 
     Returns:
         Median milliseconds per ``World.render`` call.
@@ -119,6 +122,7 @@ def run() -> dict[str, float]:
             "reset_ms": reset_ms(),
             "render_frame_orchard_ms": render_frame_ms(world_name="orchard"),
             "reset_orchard_ms": reset_ms(world_name="orchard"),
+            "render_frame_orchard_fast_ms": render_frame_ms(world_name="orchard_fast"),
         }
     finally:
         cv2.setNumThreads(threads)

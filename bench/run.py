@@ -43,6 +43,7 @@ RATIOS = (
     ("train_over_side_by_side", "train_steps_per_s_fast", "env_steps_per_s_side_by_side", 1),
     ("train_over_env_fast_mix_seeds", "train_steps_per_s_fast", "env_steps_per_s_mix", TRAIN_CORES),
     ("render_orchard_over_clean", "render_frame_orchard_ms", "render_frame_ms", 1),
+    ("render_orchard_fast_over_clean", "render_frame_orchard_fast_ms", "render_frame_ms", 1),
     ("train_fast_clean_over_orchard", "train_steps_per_s_fast",
      "train_steps_per_s_fast_orchard_learned", 1),
 )  # fmt: skip

@@ -112,6 +112,7 @@ BAD_VALUES = [
     ("jpeg_quality_range", (95, 70)),
     ("jpeg_quality_range", (70.0, 95.0)),
     ("jpeg_quality_range", (True, 95)),
+    ("jpeg", 1),
     ("gamma", 0.0),
     ("gamma", float("inf")),
 ]
@@ -180,6 +181,25 @@ def test_per_scan_draws_stay_in_their_ranges() -> None:
         qualities.add(camera.jpeg_quality)
     assert qualities == {80, 81, 82, 83, 84}  # both ends included
     assert CameraModel(CLEAN, np.random.default_rng(0)).jpeg_quality is None
+
+
+def test_jpeg_off_keeps_the_quality_draw_and_skips_the_round_trip() -> None:
+    radiance = _scene()
+    realistic = CameraConfig.realistic()
+    images, after = {}, {}
+    for name, config in (
+        ("jpeg", realistic),
+        ("off", dataclasses.replace(realistic, jpeg=False)),
+        ("none", dataclasses.replace(realistic, jpeg_quality_range=None)),
+    ):
+        scan_rng = np.random.default_rng(3)
+        camera = CameraModel(config, scan_rng)
+        after[name] = scan_rng.random()  # where the scene's next draw lands
+        images[name] = camera.expose(radiance, None, np.random.default_rng(4))
+        assert (camera.jpeg_quality is None) == (name != "jpeg")
+    assert after["off"] == after["jpeg"] != after["none"]
+    np.testing.assert_array_equal(images["off"], images["none"])
+    assert (images["off"] != images["jpeg"]).any()
 
 
 def test_expose_checks_shape_and_leaves_the_radiance_alone() -> None:

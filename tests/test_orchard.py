@@ -191,6 +191,28 @@ def test_world_names_reach_the_scan_and_env_configs() -> None:
         env_config_from_kwargs({"world": 3})
 
 
+def test_fast_orchard_is_the_same_scene_with_a_coarser_background_and_no_jpeg() -> None:
+    config = WorldConfig.preset("orchard_fast").orchard
+    assert config.background_scale == 4 and not config.camera.jpeg
+    assert OrchardConfig().background_scale == 2 and OrchardConfig().camera.jpeg  # the default
+    frames = {}
+    for name in ("orchard", "orchard_fast"):
+        world = World(WorldConfig.preset(name))
+        world.reset(5)
+        frames[name] = world.render()
+        world.close()
+    default, fast = frames["orchard"], frames["orchard_fast"]
+    # The same draws: the scanned tree's pixels, labels and depth are the default world's.
+    tree = is_scanned_tree(default.labels)
+    assert tree.sum() > 1000
+    np.testing.assert_array_equal(is_scanned_tree(fast.labels), tree)
+    np.testing.assert_array_equal(fast.depth_m[tree], default.depth_m[tree])
+    # Its colours differ by the background's share of the exposure and by JPEG only.
+    difference = np.abs(fast.rgb.astype(float) - default.rgb.astype(float))
+    assert 0.0 < difference[tree].mean() < 12.0
+    assert (fast.labels == default.labels).mean() > 0.8  # the background's outlines are coarser
+
+
 def _bad_value(value: object) -> object:
     if isinstance(value, tuple) and len(value) != 2:
         return ("trees",)

@@ -61,6 +61,7 @@ from branch_gym.segmenter_training.real_frames import (
     score_segmenter,
 )
 from branch_gym.segmenter_training.train import export_checkpoint, pair_iou, train
+from branch_gym.sim.world import WORLDS
 from recon.curve2d.types import Curve2DConfig
 from recon.segmentation import load_segmenter
 from recon.segmentation.network import ENCODERS, LITE0_ENCODER, LITE0_WIDTHS, SMALL_ENCODER
@@ -357,7 +358,7 @@ def main(argv: list[str] | None = None) -> int:
     ev.add_argument("--frames-per-tree", type=int, default=6)
     ev.add_argument("--presets", nargs="+", default=["paper", "cluttered", "hard"],
                     choices=EVAL_PRESETS)  # fmt: skip
-    ev.add_argument("--world", default="clean", choices=("clean", "orchard"))
+    ev.add_argument("--world", default="clean", choices=WORLDS)
     ev.add_argument(
         "--orbit-deg", type=float, default=0.0, help="orbit about the primary first (degrees)"
     )

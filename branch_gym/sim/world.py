@@ -27,7 +27,7 @@ from branch_gym.sim.tree.details import grow_details
 from branch_gym.sim.tree.generator import generate_tree
 from branch_gym.sim.tree.ground_truth import TreeGT
 
-WORLDS = ("clean", "orchard")
+WORLDS = ("clean", "orchard", "orchard_fast")
 # Children of the scan seed's SeedSequence: the tree, the scanned tree's scene, the orchard.
 _TREE_STREAM, _SCENE_STREAM, _ORCHARD_STREAM = 0, 1, 2
 _VIEW_AXIS_SAMPLES = 5  # heights at which the scanned axis places the culling's orbit
@@ -62,7 +62,7 @@ class WorldConfig:
 
     @classmethod
     def preset(cls, name: str, tree: TreeConfig | None = None) -> WorldConfig:
-        """The world called ``name`` ("clean" or "orchard"), with ``tree`` (default: paper's).
+        """The world called ``name`` (:data:`WORLDS`), with ``tree`` (default: the paper's).
 
         Raises:
             ValueError: an unknown name, listing the valid ones.
@@ -72,6 +72,8 @@ class WorldConfig:
             return cls(tree=tree)
         if name == "orchard":
             return cls(tree=tree, orchard=OrchardConfig())
+        if name == "orchard_fast":  # the orchard's pixel-changing speed-ups on
+            return cls(tree=tree, orchard=OrchardConfig.fast())
         raise ValueError(f"unknown world {name!r}: expected one of {WORLDS}")
 
     @property

@@ -165,6 +165,9 @@ class CameraConfig:
             (:meth:`CameraModel.image_motion_px`).
         jpeg_quality_range: (min, max) of the per-scan JPEG quality, ints in [1, 100]; None: no
             JPEG.
+        jpeg: Apply the JPEG round trip. False skips it (~0.5 ms a 320x240 frame) while the
+            per-scan quality is still drawn, so that every later draw of the scene stays where
+            it was (the orchard's fast setting, ``OrchardConfig.fast``).
         gamma: Encoding exponent, > 0: ``encoded = linear ** (1 / gamma)`` (sRGB-like power law).
     """
 
@@ -205,6 +208,8 @@ class CameraConfig:
     # Our choice: recorded or streamed frames (ROS compressed_image_transport defaults to 95;
     # bandwidth-limited pipelines go down to ~70).
     jpeg_quality_range: tuple[int, int] | None = (70, 95)
+    # Real frames arrive compressed (above); off only to save time.
+    jpeg: bool = True
     # sRGB-like encoding (standard).
     gamma: float = 2.2
 
@@ -217,7 +222,7 @@ class CameraConfig:
             value = getattr(self, name)
             if isinstance(value, list):  # configs read from YAML or JSON give lists
                 object.__setattr__(self, name, tuple(value))
-        for name in ("auto_exposure", "auto_white_balance"):
+        for name in ("auto_exposure", "auto_white_balance", "jpeg"):
             self._check(name, isinstance(getattr(self, name), bool), "a bool")
         self._check_interval("exposure_target", 0.0, 1.0, include_lo=False, include_hi=False)
         self._check_interval("exposure_percentile", 0.0, 100.0, include_lo=False, include_hi=True)
@@ -400,6 +405,8 @@ class CameraModel:
         if config.jpeg_quality_range is not None:
             q_lo, q_hi = config.jpeg_quality_range
             self.jpeg_quality = int(rng.integers(q_lo, q_hi, endpoint=True))
+            if not config.jpeg:  # drawn all the same: the scene's later draws stay in place
+                self.jpeg_quality = None
         self.white_balance_gains = self.white_balance_error.copy()
         self._log_gain: float | None = None
         self._log_awb: np.ndarray | None = None  # smoothed log grey-world gains (R, B)
