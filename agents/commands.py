@@ -14,10 +14,12 @@ command                the gym's command line          handed in
 ``branch-gym-imitate`` :mod:`branch_gym.training.      the same
                        imitation.cli`
 ``branch-gym-demo``    :mod:`branch_gym.demo`          the policy specs, the paper's columns
+(``record``)           :mod:`branch_gym.evaluation.    the policy specs
+                       record`
 =====================  ==============================  ===========================================
 
 ``python -m agents.commands COMMAND [ARGS]`` runs one without installing (``eval``, ``train``,
-``imitate``, ``demo``).
+``imitate``, ``demo``, ``record``: one simulated scan recorded as a scan folder).
 """
 
 from __future__ import annotations
@@ -66,11 +68,19 @@ def demo(argv: list[str] | None = None) -> int:
     return demo_command.main(argv, AGENTS, paper_column)
 
 
+def record(argv: list[str] | None = None) -> int:
+    """Record one simulated scan as a scan folder (returns the exit status)."""
+    from branch_gym.evaluation import record as record_command
+
+    return record_command.main(argv, AGENTS)
+
+
 COMMANDS: dict[str, Callable[[list[str] | None], int]] = {
     "eval": evaluate,
     "train": train,
     "imitate": imitate,
     "demo": demo,
+    "record": record,
 }
 
 

@@ -7,7 +7,7 @@ every frame the modeler receives; :func:`recording` wraps any loop driving a ses
 truth (``truth.json``), the model the scan built online (``recorded_model.json``) and the
 modeler's seed and config (``metadata.json``), so that::
 
-    python -m branch_gym.evaluation.record --seed 0 --out scans/seed0
+    python -m agents.commands record --seed 0 --out scans/seed0
     python -m recon.replay scans/seed0 --out replays/seed0 --truth scans/seed0/truth.json
 
 reproduces the online model exactly (PNG images; JPEG recordings are smaller and replay to a

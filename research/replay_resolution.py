@@ -29,6 +29,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from agents.factory import AGENTS
 from branch_gym.evaluation.record import record_scan
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WorldConfig
@@ -49,7 +50,9 @@ def record_tree(work: Path, seed: int, factor: float) -> None:
         out = work / f"{name}_{seed}"
         if not out.exists():
             world = replace(orchard, camera=camera)
-            record_scan(seed, "none", ScanConfig(world=world), out, image_format="jpg")
+            record_scan(
+                seed, "none", ScanConfig(world=world), out, image_format="jpg", factory=AGENTS
+            )
 
 
 def replay_tree(work: Path, seed: int) -> None:

@@ -21,10 +21,12 @@ T_TOOL_OPTICAL = make_pose(Rotation.from_euler("xyz", [3.0, -2.0, 91.0], degrees
 
 def record_short_scan(out: Path, seed: int = 0, **kwargs) -> object:
     """Record the short scan of tree ``seed`` into ``out``; returns the ScanResult."""
+    from agents.factory import AGENTS
     from branch_gym.evaluation.record import record_scan
     from branch_gym.scan import ScanConfig
 
-    return record_scan(seed, "none", ScanConfig(end_height_m=SHORT_END_HEIGHT_M), out, **kwargs)
+    scan = ScanConfig(end_height_m=SHORT_END_HEIGHT_M)
+    return record_scan(seed, "none", scan, out, factory=AGENTS, **kwargs)
 
 
 def _stamp(ts, t_ns: int):

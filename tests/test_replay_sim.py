@@ -268,10 +268,13 @@ def test_shipped_example_replays(tmp_path):
 
 @pytest.mark.slow  # ~10 s: a rotating scan to 0.40 m
 def test_periodic_rotation_scan_replays_exactly(tmp_path):
+    from agents.factory import AGENTS
     from branch_gym.evaluation.record import record_scan
     from branch_gym.scan import ScanConfig
 
-    result = record_scan(2, "periodic:22.5:1.5", ScanConfig(end_height_m=0.40), tmp_path / "rec")
+    result = record_scan(
+        2, "periodic:22.5:1.5", ScanConfig(end_height_m=0.40), tmp_path / "rec", factory=AGENTS
+    )
     assert result.rotations >= 1
     replayed = replay(tmp_path / "rec", tmp_path / "out", progress=False)
     assert replayed.model.to_dict() == result.model.to_dict()

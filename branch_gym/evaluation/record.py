@@ -1,6 +1,7 @@
-"""Record one simulated scan as a scan folder: ``python -m branch_gym.evaluation.record``.
+"""Record one simulated scan as a scan folder: ``python -m agents.commands record``.
 
-The recorded folder replays with ``python -m recon.replay`` (``docs/replay.md``).
+The recorded folder replays with ``python -m recon.replay`` (``docs/replay.md``). The policy
+specs are read by the factory the command hands in (:mod:`agents.commands`).
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import logging
 from pathlib import Path
 
 from branch_gym.evaluation.episodes import Recording, run_trial
+from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
 from branch_gym.scoring import ScanResult
 
@@ -22,33 +24,35 @@ def record_scan(
     image_format: str = "png",
     jpeg_quality: int = 95,
     overwrite: bool = False,
+    *,
+    factory: PolicyFactory,
 ) -> ScanResult:
     """Scan the tree of ``seed`` with a policy and record it as a scan folder.
 
     Args:
         seed: Tree seed (also the modeler's seed).
-        policy_spec: Policy spec for :func:`agents.factory.make_agent` ("none",
-            "periodic:22.5:1.5", "ppo:PATH", ...).
+        policy_spec: Policy spec ("none", "periodic:22.5:1.5", "ppo:PATH", ...).
         scan_config: Scan settings (``end_height_m`` low for a short recording).
         out_dir: The scan folder to create (appears only when complete).
         image_format: "png" (lossless: exact replays) or "jpg" (small).
         jpeg_quality: JPEG quality 0-100.
         overwrite: Replace an existing ``out_dir``.
+        factory: Reads the spec (``agents.factory.AGENTS``).
 
     Returns:
         The scan's :class:`branch_gym.scoring.ScanResult` (scored online).
     """
     record = Recording(Path(out_dir), image_format, jpeg_quality, overwrite)
-    return run_trial(seed, policy_spec, scan_config or ScanConfig(), record)
+    return run_trial(seed, policy_spec, scan_config or ScanConfig(), factory, record)
 
 
-def main(argv: list[str] | None = None) -> int:
-    """``python -m branch_gym.evaluation.record --seed 0 --out DIR``: record one simulated scan."""
+def main(argv: list[str] | None, factory: PolicyFactory) -> int:
+    """``python -m agents.commands record --seed 0 --out DIR``: record one simulated scan."""
     parser = argparse.ArgumentParser(
-        prog="python -m branch_gym.evaluation.record", description="Record a simulated scan."
+        prog="python -m agents.commands record", description="Record a simulated scan."
     )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--policy", default="none", help="policy spec (agents.factory)")
+    parser.add_argument("--policy", default="none", help=f"policy spec: {factory.spec_forms}")
     parser.add_argument("--end-height", type=float, default=ScanConfig.end_height_m)
     parser.add_argument("--segmenter", default="gt")
     parser.add_argument("--image-format", choices=("png", "jpg"), default="png")
@@ -66,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         image_format=args.image_format,
         jpeg_quality=args.jpeg_quality,
         overwrite=args.overwrite,
+        factory=factory,
     )
     size = sum(p.stat().st_size for p in args.out.rglob("*") if p.is_file())
     print(
@@ -74,7 +79,3 @@ def main(argv: list[str] | None = None) -> int:
         f"{result.scan_time_s:.1f} s, PB residual {result.metrics.pb_residual_mean_m * 1e3:.2f} mm"
     )
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
