@@ -210,3 +210,11 @@ def branch_rows(
             }
         )  # fmt: skip
     return rows
+
+
+def miss_counts(branches: list[dict[str, object]]) -> dict[str, int]:
+    """``n_missed_seen`` and ``n_missed_never_seen`` of a scan's branch rows."""
+    return {
+        "n_missed_seen": sum(row["miss"] == MISS_SEEN for row in branches),
+        "n_missed_never_seen": sum(row["miss"] == MISS_NEVER_SEEN for row in branches),
+    }

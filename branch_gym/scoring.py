@@ -1,7 +1,9 @@
 """Scoring a scan against the ground truth: :class:`ScanResult` and :func:`score_scan`.
 
 Simulation only: it reads the tree's ground truth, which no policy may see. The metrics are the
-paper's (:func:`recon.metrics.evaluate`), up to the height the camera reached.
+paper's (:func:`recon.metrics.evaluate`), with every reconstructed side branch classed against the
+structures around the tree (:mod:`branch_gym.surroundings`) and, by default, every branch up to
+the planned end height in scope (a failed scan misses those above where it stopped).
 """
 
 from __future__ import annotations
@@ -12,10 +14,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from branch_gym.attribution import MISS_NEVER_SEEN, MISS_SEEN, branch_rows
-from branch_gym.scan import ScanSession
+from branch_gym.attribution import branch_rows, miss_counts
+from branch_gym.scan import ScanConfig, ScanSession
 from branch_gym.sim.tree.ground_truth import TreeGT
-from recon.metrics import TreeMetrics, evaluate
+from branch_gym.surroundings import Surroundings, surroundings_of
+from recon.metrics import MetricsConfig, TreeMetrics, evaluate
 from recon.model import TreeModel
 
 
@@ -39,6 +42,9 @@ class ScanResult:
         wall_time_s: Wall-clock time of the scan so far (s).
         branches: One row per ground-truth secondary: geometry, visibility, match,
             completeness and why it was missed (:func:`branch_gym.attribution.branch_rows`).
+        surroundings: The structures around the tree the metrics classed reconstructions
+            against (:func:`branch_gym.surroundings.surroundings_of`).
+        planned_top_z_m: The height the scan was to reach (m): the top of the scored scope.
     """
 
     seed: int
@@ -55,6 +61,8 @@ class ScanResult:
     stage_ms: dict[str, float]
     wall_time_s: float
     branches: list[dict[str, object]] = field(default_factory=list)
+    surroundings: Surroundings = field(default_factory=dict)
+    planned_top_z_m: float = float("nan")
 
     def to_row(self) -> dict:
         """A flat, CSV-able row."""
@@ -75,12 +83,16 @@ class ScanResult:
         return row
 
 
-def score_scan(session: ScanSession, policy: str = "") -> ScanResult:
+def score_scan(
+    session: ScanSession, policy: str = "", metrics_config: MetricsConfig | None = None
+) -> ScanResult:
     """Score a session's current model against its tree's ground truth.
 
     Args:
         session: A session after ``reset`` (finished or not).
         policy: Recorded in the result.
+        metrics_config: The scoring rules; by default the authors' thresholds over the scan's
+            band (:func:`scan_metrics_config`), branches up to the planned end height in scope.
 
     Raises:
         RuntimeError: the session has not been reset.
@@ -88,7 +100,16 @@ def score_scan(session: ScanSession, policy: str = "") -> ScanResult:
     if session.tree is None:
         raise RuntimeError("ScanSession.reset(seed) must be called before scoring the scan")
     model = session.model
-    metrics = evaluate(model, session.tree, scanned_top_z_m=session.camera_height_m)
+    surroundings = session_surroundings(session)
+    planned_top_m = session.config.end_height_m
+    metrics = evaluate(
+        model,
+        session.tree,
+        metrics_config or scan_metrics_config(session.config),
+        scanned_top_z_m=session.camera_height_m,
+        surroundings=surroundings,
+        planned_top_z_m=planned_top_m,
+    )
     reports = session.reports
     outcomes = Counter(r.outcome.value for r in reports)
     stages = sorted({k for r in reports for k in r.timings_ms})
@@ -110,12 +131,23 @@ def score_scan(session: ScanSession, policy: str = "") -> ScanResult:
         stage_ms=stage_ms,
         wall_time_s=time.perf_counter() - session.wall_start_s,
         branches=branch_rows(session.tree, metrics, session.sensor.visibility),
+        surroundings=surroundings,
+        planned_top_z_m=planned_top_m,
     )
 
 
-def miss_counts(branches: list[dict[str, object]]) -> dict[str, int]:
-    """``n_missed_seen`` and ``n_missed_never_seen`` of a scan's branch rows."""
-    return {
-        "n_missed_seen": sum(row["miss"] == MISS_SEEN for row in branches),
-        "n_missed_never_seen": sum(row["miss"] == MISS_NEVER_SEEN for row in branches),
-    }
+# Band heights are rounded to this many decimals (nanometres): 0.275 + 0.05 is 0.325 exactly.
+_BAND_DECIMALS = 9
+
+
+def scan_metrics_config(scan: ScanConfig, **changes: object) -> MetricsConfig:
+    """The authors' scoring rules over ``scan``'s band (:attr:`ScanConfig.metrics_band_m`), with
+    other :class:`recon.metrics.MetricsConfig` fields as ``changes``."""
+    low, high = (round(z, _BAND_DECIMALS) for z in scan.metrics_band_m)
+    # A scan ending below the band (a quick test scan) scores an empty band.
+    return MetricsConfig(band_min_z_m=low, band_max_z_m=max(high, low), **changes)
+
+
+def session_surroundings(session: ScanSession) -> Surroundings:
+    """The structures around a reset session's tree (its orchard row, if any)."""
+    return surroundings_of(session.tree, getattr(session.world.scene, "row", None))

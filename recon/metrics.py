@@ -14,7 +14,26 @@ candidates (largest number of pairs, then least total median distance) gives the
 
 * matched to an in-scope branch: a match; matched to an out-of-scope branch: ignored (not spurious);
 * not matched but a candidate of some in-scope branch: a duplicate (that branch was taken);
-* a candidate of nothing: spurious. Unmatched in-scope ground-truth branches are missed.
+* a candidate of nothing: spurious in the paper's sense. Unmatched in-scope ground-truth branches
+  are missed.
+
+Every reconstructed side branch lands in exactly one class (:data:`BRANCH_CLASSES`, one entry per
+reconstructed branch in :attr:`TreeMetrics.reconstructed_classes`): ``match``, ``duplicate``,
+``out_of_scope`` (matched to, or a candidate of, only a ground-truth branch out of scope),
+``short`` (under the minimum horizontal extent, not scored), or, for a candidate of nothing, the
+kind of the nearest surrounding structure it lies on (:data:`SURROUNDING_KINDS`: the tree's own
+spurs, stubs and buds, a neighbour's branch, a wire or post, the clean world's clutter; median
+distance of its samples below ``MetricsConfig.surroundings_max_median_distance_m``), or
+``spurious``: nothing there. ``n_spurious`` counts that last class; the paper's spurious (a
+candidate of nothing, whatever lies there) is ``n_spurious_paper``. Precision counts against the
+reconstruction every branch that is not a distinct side branch of the scanned tree, except the
+tree's own details and out-of-scope branches: matched / (matched + duplicates + neighbours +
+trellis + clutter + spurious).
+
+Scope (``MetricsConfig.count_unreached_as_missed``): by default a ground-truth branch is in scope
+up to the scan's *planned* top height, so a scan that failed or stopped early misses the branches
+above where it stopped (``n_unreached`` of its misses). The paper scored up to the height the
+camera reached (``count_unreached_as_missed=False``, its replication table).
 
 Percentages follow the authors' code: missed, spurious and duplicates are all divided by the number
 of in-scope ground-truth branches. SB residuals and radius errors use the *overlapping* part of each
@@ -30,7 +49,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -41,6 +60,15 @@ from scipy.spatial import cKDTree
 from recon.validation import require_non_negative, require_positive
 
 PERCENT = 100.0
+# Kinds of structure around the scanned tree that a reconstruction matching no side branch can
+# lie on (``surroundings`` of :func:`evaluate`): the tree's own spurs, stubs and buds (the ground
+# truth's ``details``), branches of the row's other trees (and a UFO tree's other uprights and
+# cordon), trellis wires, clips and posts, and the clean world's clutter.
+SURROUNDING_KINDS = ("detail", "neighbour", "trellis", "clutter")
+# Every class of a reconstructed side branch (module docstring), in report order.
+BRANCH_CLASSES = ("match", "duplicate", *SURROUNDING_KINDS, "spurious", "out_of_scope", "short")
+# Classes held against precision: what is not a distinct side branch of the scanned tree.
+_NOT_PRECISE = ("duplicate", "neighbour", "trellis", "clutter", "spurious")
 
 
 class BranchLike(Protocol):
@@ -73,7 +101,8 @@ class MetricsConfig:
 
     Attributes:
         band_min_z_m: Bottom of the scanned band; PB points at or below it are not scored (0.325 m).
-        band_max_z_m: Top of the scanned band and default scanned top height (0.75 m).
+        band_max_z_m: Top of the scanned band and default scanned top height (0.75 m); equal
+            to ``band_min_z_m``, the band is empty.
         primary_resample_count: Points of the resampled ground-truth primary (10,000).
         secondary_resample_step_m: Resampling step of both SB sets (1 mm).
         gt_base_margin_m: GT branches whose base is above the scanned top height plus this are out
@@ -86,6 +115,13 @@ class MetricsConfig:
         completeness_tolerance_m: A ground-truth sample of a matched branch is covered when a
             reconstructed sample of its match lies within this (our choice: 1 cm, half the
             matching distance); SB completeness is the covered share of the branch's length.
+        surroundings_max_median_distance_m: A reconstruction that is a candidate of no side
+            branch is put down to a surrounding structure when the median distance of its
+            samples to that kind's structures is below this (our choice: the authors' matching
+            distance, 2 cm); otherwise it is spurious (nothing there).
+        count_unreached_as_missed: Ground-truth branches are in scope up to the planned top
+            height, so those above where a failed scan stopped are missed (default, the
+            benchmark's rule); False scores up to the height reached, as the paper's analysis.
     """
 
     band_min_z_m: float = 0.325
@@ -97,11 +133,13 @@ class MetricsConfig:
     max_match_angle_deg: float = 60.0
     max_match_median_distance_m: float = 0.02
     completeness_tolerance_m: float = 0.01
+    surroundings_max_median_distance_m: float = 0.02
+    count_unreached_as_missed: bool = True
 
     def __post_init__(self) -> None:
-        if not self.band_min_z_m < self.band_max_z_m:
+        if not self.band_min_z_m <= self.band_max_z_m:  # equal: an empty band
             raise ValueError(
-                f"band_min_z_m ({self.band_min_z_m}) must be below "
+                f"band_min_z_m ({self.band_min_z_m}) must not be above "
                 f"band_max_z_m ({self.band_max_z_m})"
             )
         if self.primary_resample_count < 2:
@@ -113,6 +151,7 @@ class MetricsConfig:
             "secondary_resample_step_m",
             "max_match_median_distance_m",
             "completeness_tolerance_m",
+            "surroundings_max_median_distance_m",
             finite=False,
         )
         require_non_negative(self, "gt_base_margin_m", "min_horizontal_length_m", finite=False)
@@ -134,7 +173,8 @@ class TreeMetrics:
         matches: (GT index, reconstructed index) pairs, indices into ``truth.secondaries`` and
             ``model.secondaries``.
         n_gt: In-scope GT secondaries.
-        n_matched, n_missed, n_spurious, n_duplicates: Counts as in the module docstring.
+        n_matched, n_missed, n_duplicates: Counts as in the module docstring.
+        n_spurious: Reconstructed secondaries with nothing there (class ``spurious``).
         n_ignored_reconstructed: Reconstructed secondaries too short, or matched (or only a
             candidate) out of scope.
         scanned_top_z_m: Scanned top height used for the GT scope.
@@ -143,9 +183,20 @@ class TreeMetrics:
             match covers (``MetricsConfig.completeness_tolerance_m``), in [0, 1].
         match_residual_m: (len(matches),) mean overlap residual of each matched pair (NaN when
             no sample overlaps).
+        reconstructed_classes: The class of each reconstructed secondary (index as
+            ``model.secondaries``; :data:`BRANCH_CLASSES`).
+        n_unreached: Missed in-scope branches whose base lies above the height the scan reached
+            plus the margin (a failed or stopped scan's; 0 when scoring up to the height reached).
+        class_counts: Reconstructed secondaries per class, every class of
+            :data:`BRANCH_CLASSES` (derived).
+        n_spurious_paper: The paper's spurious count: candidates of no ground-truth side branch,
+            whatever they lie on (derived).
+        precision_pct: Matched in % of the reconstructions held against precision (module
+            docstring); NaN when there are none (derived).
         pb_residual_mean_m, sb_residual_mean_m: Means of the residuals (derived).
         pb_radius_rmse_m, sb_radius_rmse_m: RMS of the radius errors (derived).
-        missed_pct, spurious_pct, duplicate_pct: Counts in % of ``n_gt`` (derived).
+        missed_pct, spurious_pct, duplicate_pct, spurious_paper_pct: Counts in % of ``n_gt``
+            (derived).
         sb_completeness_pct: Mean completeness of the matches, % (derived).
     """
 
@@ -164,6 +215,12 @@ class TreeMetrics:
     gt_in_scope: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
     match_completeness: np.ndarray = field(default_factory=lambda: np.zeros(0))
     match_residual_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    reconstructed_classes: list[str] = field(default_factory=list)
+    n_unreached: int = 0
+    class_counts: dict[str, int] = field(init=False)
+    n_spurious_paper: int = field(init=False)
+    precision_pct: float = field(init=False)
+    spurious_paper_pct: float = field(init=False)
     pb_residual_mean_m: float = field(init=False)
     pb_radius_rmse_m: float = field(init=False)
     sb_residual_mean_m: float = field(init=False)
@@ -174,6 +231,17 @@ class TreeMetrics:
     sb_completeness_pct: float = field(init=False)
 
     def __post_init__(self) -> None:
+        unknown = set(self.reconstructed_classes) - set(BRANCH_CLASSES)
+        if unknown:
+            raise ValueError(f"unknown reconstructed branch classes {sorted(unknown)}")
+        self.class_counts = {
+            name: self.reconstructed_classes.count(name) for name in BRANCH_CLASSES
+        }
+        self.n_spurious_paper = self.n_spurious + sum(
+            self.class_counts[kind] for kind in SURROUNDING_KINDS
+        )
+        self.precision_pct = precision_percent([self])
+        self.spurious_paper_pct = pooled_percent([self.n_spurious_paper], [self.n_gt])
         self.pb_residual_mean_m = _mean(self.pb_residuals_m)
         self.pb_radius_rmse_m = _rms(self.pb_radius_errors_m)
         self.sb_residual_mean_m = _mean(self.sb_residuals_m)
@@ -201,6 +269,11 @@ class TreeMetrics:
             "missed_pct": self.missed_pct,
             "spurious_pct": self.spurious_pct,
             "duplicate_pct": self.duplicate_pct,
+            "n_unreached": self.n_unreached,
+            "n_spurious_paper": self.n_spurious_paper,
+            "spurious_paper_pct": self.spurious_paper_pct,
+            "precision_pct": self.precision_pct,
+            **{f"n_class_{name}": count for name, count in self.class_counts.items()},
             "sb_completeness_pct": self.sb_completeness_pct,
             "scanned_top_z_m": self.scanned_top_z_m,
             "matches": json.dumps([list(pair) for pair in self.matches]),
@@ -229,11 +302,22 @@ class TreeMetrics:
             "gt_in_scope": [bool(v) for v in self.gt_in_scope],
             "match_completeness": [_float_to_json(v) for v in self.match_completeness.tolist()],
             "match_residual_m": [_float_to_json(v) for v in self.match_residual_m.tolist()],
+            "reconstructed_classes": list(self.reconstructed_classes),
+            "n_unreached": int(self.n_unreached),
         }
 
     @classmethod
     def from_json_dict(cls, data: dict) -> TreeMetrics:
-        """Inverse of :meth:`to_json_dict` (also after a ``json.dumps`` / ``json.loads`` trip)."""
+        """Inverse of :meth:`to_json_dict` (also after a ``json.dumps`` / ``json.loads`` trip).
+
+        Raises:
+            KeyError: ``data`` was written before the reconstructed branches had classes (its
+                ``n_spurious`` is the paper's): re-score the trial (:func:`evaluate`).
+        """
+        if "reconstructed_classes" not in data:
+            raise KeyError(
+                "reconstructed_classes: metrics saved before the branch classes; re-score them"
+            )
         return cls(
             pb_residuals_m=_array_from_json(data["pb_residuals_m"]),
             pb_radius_errors_m=_array_from_json(data["pb_radius_errors_m"]),
@@ -250,6 +334,8 @@ class TreeMetrics:
             gt_in_scope=np.array(data.get("gt_in_scope", []), bool),
             match_completeness=_array_from_json(data.get("match_completeness", [])),
             match_residual_m=_array_from_json(data.get("match_residual_m", [])),
+            reconstructed_classes=[str(name) for name in data["reconstructed_classes"]],
+            n_unreached=int(data.get("n_unreached", 0)),
         )
 
 
@@ -267,6 +353,8 @@ class TruthIndex:
         secondary_samples: Each GT secondary resampled every ``secondary_resample_step_m``.
         secondary_trees: KD-trees of those samples.
         config: The metrics configuration it was built for.
+        surroundings: Per surrounding kind (:data:`SURROUNDING_KINDS`), a KD-tree of the samples
+            of all its structures (kinds without structures left out).
         scored: What :func:`evaluate` worked out for each reconstructed secondary of the last
             call (by the identity of its points and radii arrays): a model scored after every
             step keeps most of its branches, and their work is not redone.
@@ -278,6 +366,7 @@ class TruthIndex:
     secondary_samples: list[Branch]
     secondary_trees: list[cKDTree]
     config: MetricsConfig
+    surroundings: dict[str, cKDTree] = field(default_factory=dict)
     scored: dict[int, _ScoredBranch] = field(default_factory=dict, compare=False, repr=False)
 
 
@@ -300,11 +389,23 @@ class _ScoredBranch:
     pairs: dict[int, tuple[np.ndarray, np.ndarray, float, float]] = field(default_factory=dict)
 
 
-def index_truth(truth: TreeLike, config: MetricsConfig | None = None) -> TruthIndex:
+Surroundings = Mapping[str, Sequence[BranchLike]]
+
+
+def index_truth(
+    truth: TreeLike, config: MetricsConfig | None = None, surroundings: Surroundings | None = None
+) -> TruthIndex:
     """Validate and prepare a ground-truth tree for :func:`evaluate`.
 
+    Args:
+        truth: The ground-truth tree.
+        config: Evaluation parameters; the authors' values by default.
+        surroundings: Structures around the tree by kind (:data:`SURROUNDING_KINDS`), each a
+            centerline in metres, world frame; None or a kind left out: none of that kind.
+
     Raises:
-        ValueError: no ground-truth primary, or malformed branches (see :func:`evaluate`).
+        ValueError: no ground-truth primary, malformed branches (see :func:`evaluate`), or an
+            unknown surrounding kind.
     """
     config = config or MetricsConfig()
     if truth.primary is None:
@@ -316,6 +417,21 @@ def index_truth(truth: TreeLike, config: MetricsConfig | None = None) -> TruthIn
         if np.allclose(points[-1], points[0]):
             raise ValueError(f"truth.secondaries[{i}] has no base-to-tip extent")
     samples = [_resample(b, step_m=config.secondary_resample_step_m) for b in gt]
+    surrounding_trees = {}
+    for kind, structures in (surroundings or {}).items():
+        if kind not in SURROUNDING_KINDS:
+            raise ValueError(
+                f"unknown surrounding kind {kind!r}; expected one of {SURROUNDING_KINDS}"
+            )
+        kind_samples = [
+            _resample(
+                _branch_arrays(b, f"surroundings[{kind!r}][{i}]", 1),
+                step_m=config.secondary_resample_step_m,
+            )[0]
+            for i, b in enumerate(structures)
+        ]
+        if kind_samples:
+            surrounding_trees[kind] = cKDTree(np.concatenate(kind_samples))
     return TruthIndex(
         primary=primary,
         primary_tree=cKDTree(primary[0]),
@@ -323,6 +439,7 @@ def index_truth(truth: TreeLike, config: MetricsConfig | None = None) -> TruthIn
         secondary_samples=samples,
         secondary_trees=[cKDTree(points) for points, _ in samples],
         config=config,
+        surroundings=surrounding_trees,
     )
 
 
@@ -332,6 +449,8 @@ def evaluate(
     config: MetricsConfig | None = None,
     scanned_top_z_m: float | None = None,
     truth_index: TruthIndex | None = None,
+    surroundings: Surroundings | None = None,
+    planned_top_z_m: float | None = None,
 ) -> TreeMetrics:
     """Score a reconstructed tree against ground truth.
 
@@ -340,25 +459,36 @@ def evaluate(
         truth: Ground truth with the same duck type; it must have a primary branch.
         config: Evaluation parameters; the authors' values by default.
         scanned_top_z_m: Highest height the scan reached, metres (e.g. lower after a failure);
-            defaults to ``config.band_max_z_m``.
-        truth_index: ``index_truth(truth, config)``, built once for many calls on one tree
-            (the same numbers, cheaper); None builds it here.
+            defaults to the planned top.
+        truth_index: ``index_truth(truth, config, surroundings)``, built once for many calls on
+            one tree (the same numbers, cheaper); None builds it here.
+        surroundings: Structures around the tree by kind (:func:`index_truth`); only without
+            ``truth_index`` (which holds them).
+        planned_top_z_m: The height the scan was to reach, metres; defaults to
+            ``config.band_max_z_m``. Ground-truth branches are in scope up to it, or up to
+            ``scanned_top_z_m`` with ``config.count_unreached_as_missed`` False.
 
     Returns:
         The trial's metrics.
 
     Raises:
         ValueError: malformed branches (shapes, non-finite values, a ground-truth branch with fewer
-            than two points or no base-to-tip extent), no ground-truth primary, or a non-finite
-            scanned top height.
+            than two points or no base-to-tip extent), no ground-truth primary, a non-finite
+            top height, or surroundings given with a ``truth_index``.
     """
     config = config or MetricsConfig()
     if truth_index is not None and truth_index.config != config:
         raise ValueError("truth_index was built for another MetricsConfig")
-    top_m = config.band_max_z_m if scanned_top_z_m is None else float(scanned_top_z_m)
-    if not np.isfinite(top_m):
-        raise ValueError(f"scanned_top_z_m must be finite, got {scanned_top_z_m}")
-    index = truth_index or index_truth(truth, config)
+    if truth_index is not None and surroundings is not None:
+        raise ValueError("pass surroundings to index_truth when a truth_index is given")
+    planned_m = config.band_max_z_m if planned_top_z_m is None else float(planned_top_z_m)
+    top_m = planned_m if scanned_top_z_m is None else float(scanned_top_z_m)
+    if not (np.isfinite(top_m) and np.isfinite(planned_m)):
+        raise ValueError(
+            f"scanned_top_z_m and planned_top_z_m must be finite, got {scanned_top_z_m} and "
+            f"{planned_top_z_m}"
+        )
+    index = truth_index or index_truth(truth, config, surroundings)
     model_primary = (
         None if model.primary is None else _branch_arrays(model.primary, "model.primary", 0)
     )
@@ -370,7 +500,7 @@ def evaluate(
         pb_residuals_m=pb_residuals,
         pb_radius_errors_m=pb_radius_errors,
         scanned_top_z_m=top_m,
-        **_secondary_metrics(reconstructed, index, top_m, config),
+        **_secondary_metrics(reconstructed, index, top_m, planned_m, config),
     )
 
 
@@ -388,12 +518,21 @@ def pooled_percent(counts: Iterable[int], totals: Iterable[int]) -> float:
     return PERCENT * count / total if total else float("nan")
 
 
+def precision_percent(trials: Sequence[TreeMetrics]) -> float:
+    """Side-branch precision pooled over trials: 100 sum(matched) / sum(matched + held against
+    precision) (module docstring); NaN when no trial reconstructed a scored branch."""
+    matched = sum(t.class_counts["match"] for t in trials)
+    held = sum(t.class_counts[name] for t in trials for name in _NOT_PRECISE)
+    return PERCENT * matched / (matched + held) if matched + held else float("nan")
+
+
 def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
     """Mean and standard deviation over trials, as Table I reports them.
 
     PB and SB residuals are pooled over all points of all trials (as the paper); radius RMSEs are
     averaged over the trials where they are defined; missed / spurious / duplicate percentages are
-    totals (sum over trials / sum of in-scope GT branches). Standard deviations are population
+    totals (sum over trials / sum of in-scope GT branches), precision is pooled
+    (:func:`precision_percent`). Standard deviations are population
     (ddof=0). Undefined entries are NaN.
 
     Raises:
@@ -408,7 +547,13 @@ def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
     completeness = np.concatenate([np.asarray(t.match_completeness, float) for t in trials])
     totals = {
         name: int(sum(getattr(t, name) for t in trials))
-        for name in ("n_gt", "n_matched", "n_missed", "n_spurious", "n_duplicates")
+        for name in (
+            "n_gt", "n_matched", "n_missed", "n_spurious", "n_duplicates", "n_spurious_paper",
+            "n_unreached",
+        )
+    }  # fmt: skip
+    classes = {
+        f"n_class_{name}": int(sum(t.class_counts[name] for t in trials)) for name in BRANCH_CLASSES
     }
     n_gt = [t.n_gt for t in trials]
     return {
@@ -428,6 +573,9 @@ def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
         "missed_pct": pooled_percent([t.n_missed for t in trials], n_gt),
         "spurious_pct": pooled_percent([t.n_spurious for t in trials], n_gt),
         "duplicate_pct": pooled_percent([t.n_duplicates for t in trials], n_gt),
+        "spurious_paper_pct": pooled_percent([t.n_spurious_paper for t in trials], n_gt),
+        "precision_pct": precision_percent(trials),
+        **classes,
         "sb_completeness_pct": PERCENT * _mean(completeness),
     }
 
@@ -484,16 +632,23 @@ def _primary_errors(
 
 
 def _secondary_metrics(
-    reconstructed: list[Branch], index: TruthIndex, top_m: float, config: MetricsConfig
+    reconstructed: list[Branch],
+    index: TruthIndex,
+    top_m: float,
+    planned_m: float,
+    config: MetricsConfig,
 ) -> dict:
-    """Scope, candidates, one-to-one assignment, counts and overlap errors (module docstring).
+    """Scope, candidates, one-to-one assignment, classes, counts and overlap errors (module
+    docstring); ``top_m`` the height reached, ``planned_m`` the height planned.
 
     Returns:
         The secondary-branch fields of :class:`TreeMetrics`, by name.
     """
     gt, gt_samples, gt_trees = index.secondaries, index.secondary_samples, index.secondary_trees
-    base_z = np.array([points[0, 2] for points, _ in gt])
-    in_scope = (base_z >= config.band_min_z_m) & (base_z <= top_m + config.gt_base_margin_m)
+    base_z = np.array([points[0, 2] for points, _ in gt]).reshape(len(gt))
+    scope_top_m = planned_m if config.count_unreached_as_missed else top_m
+    in_scope = (base_z >= config.band_min_z_m) & (base_z <= scope_top_m + config.gt_base_margin_m)
+    unreached = in_scope & (base_z > top_m + config.gt_base_margin_m)
     kept = [
         i
         for i, (points, _) in enumerate(reconstructed)
@@ -519,9 +674,20 @@ def _secondary_metrics(
     rows, cols = rows[paired], cols[paired]
 
     matches = sorted((int(j), kept[r]) for r, j in zip(rows, cols, strict=True) if in_scope[j])
-    unassigned = candidate[np.setdiff1d(np.arange(len(kept)), rows)]
-    n_duplicates = int(np.sum(np.any(unassigned[:, in_scope], axis=1)))
-    n_spurious = int(np.sum(~np.any(unassigned, axis=1)))
+    classes = ["short"] * len(reconstructed)
+    assigned = dict(zip(rows.tolist(), cols.tolist(), strict=True))
+    for r, i in enumerate(kept):
+        if r in assigned:
+            classes[i] = "match" if in_scope[assigned[r]] else "out_of_scope"
+        elif np.any(candidate[r] & in_scope):
+            classes[i] = "duplicate"
+        elif np.any(candidate[r]):
+            classes[i] = "out_of_scope"
+        else:
+            classes[i] = _surrounding_class(scored[i].samples[0], index, config)
+    n_duplicates = classes.count("duplicate")
+    n_spurious = classes.count("spurious")
+    matched_gt = [j for j, _ in matches]
     residuals, radius_errors, completeness, pair_residuals = _pair_errors(
         matches, scored, gt_samples, gt_trees, config.completeness_tolerance_m
     )
@@ -537,8 +703,24 @@ def _secondary_metrics(
         "n_missed": int(in_scope.sum()) - len(matches),
         "n_spurious": n_spurious,
         "n_duplicates": n_duplicates,
-        "n_ignored_reconstructed": len(reconstructed) - len(matches) - n_spurious - n_duplicates,
+        "n_ignored_reconstructed": classes.count("short") + classes.count("out_of_scope"),
+        "reconstructed_classes": classes,
+        "n_unreached": int(np.sum(unreached)) - int(np.sum(unreached[matched_gt])),
     }
+
+
+def _surrounding_class(samples: np.ndarray, index: TruthIndex, config: MetricsConfig) -> str:
+    """The surrounding kind whose structures lie closest (median distance of ``samples``, (N, 3)
+    in metres) within ``config.surroundings_max_median_distance_m``, or "spurious"."""
+    best, best_m = "spurious", config.surroundings_max_median_distance_m
+    for kind in SURROUNDING_KINDS:
+        tree = index.surroundings.get(kind)
+        if tree is None:
+            continue
+        median_m = float(np.median(tree.query(samples)[0]))
+        if median_m < best_m:
+            best, best_m = kind, median_m
+    return best
 
 
 def _score_branch(

@@ -158,18 +158,35 @@ def test_assignment_is_globally_optimal() -> None:
     assert metrics.n_duplicates == metrics.n_spurious == 0
 
 
-def test_branches_above_the_scanned_height_are_ignored() -> None:
+def test_paper_scope_ignores_branches_above_the_scanned_height() -> None:
     truth = _truth()  # bases at 0.40, 0.50 and 0.60 m
+    paper = MetricsConfig(count_unreached_as_missed=False)
     # Scan stopped at 0.45 m: the 0.50 m base is above 0.45 + 0.02, and so is the 0.60 m one.
-    metrics = evaluate(_model(truth.primary, truth.secondaries[:1]), truth, scanned_top_z_m=0.45)
-    assert (metrics.n_gt, metrics.n_matched, metrics.n_missed) == (1, 1, 0)
+    model = _model(truth.primary, truth.secondaries[:1])
+    metrics = evaluate(model, truth, paper, scanned_top_z_m=0.45)
+    assert (metrics.n_gt, metrics.n_matched, metrics.n_missed, metrics.n_unreached) == (1, 1, 0, 0)
     # A reconstruction of an out-of-scope branch is neither spurious nor a match.
-    metrics = evaluate(_model(truth.primary, truth.secondaries), truth, scanned_top_z_m=0.45)
+    metrics = evaluate(_model(truth.primary, truth.secondaries), truth, paper, scanned_top_z_m=0.45)
     assert (metrics.n_gt, metrics.n_matched, metrics.n_spurious) == (1, 1, 0)
     assert metrics.n_ignored_reconstructed == 2
+    assert metrics.reconstructed_classes == ["match", "out_of_scope", "out_of_scope"]
     assert metrics.matches == [(0, 0)]
     # Within the 2 cm margin the 0.50 m branch counts.
-    assert evaluate(_model(truth.primary, []), truth, scanned_top_z_m=0.49).n_gt == 2
+    assert evaluate(_model(truth.primary, []), truth, paper, scanned_top_z_m=0.49).n_gt == 2
+
+
+def test_a_scan_that_fails_halfway_misses_the_branches_above_it() -> None:
+    truth = _truth()  # bases at 0.40, 0.50 and 0.60 m
+    # The benchmark's scope: up to the planned top (0.75 m), wherever the scan stopped (0.45 m).
+    metrics = evaluate(_model(truth.primary, truth.secondaries[:1]), truth, scanned_top_z_m=0.45)
+    assert (metrics.n_gt, metrics.n_matched, metrics.n_missed, metrics.n_unreached) == (3, 1, 2, 2)
+    assert metrics.missed_pct == pytest.approx(200 / 3)
+    # A branch seen from below its base height is found, not unreached.
+    metrics = evaluate(_model(truth.primary, truth.secondaries[:2]), truth, scanned_top_z_m=0.45)
+    assert (metrics.n_missed, metrics.n_unreached) == (1, 1)
+    # A lower planned top (a quick run) bounds the scope.
+    metrics = evaluate(_model(truth.primary, []), truth, scanned_top_z_m=0.45, planned_top_z_m=0.55)
+    assert (metrics.n_gt, metrics.n_unreached) == (2, 1)
 
 
 def test_gt_branch_below_the_band_is_out_of_scope() -> None:
@@ -336,3 +353,75 @@ def test_a_reused_index_keeps_unchanged_branches_and_rescores_changed_ones() -> 
     assert id(model.secondaries[1].points) not in index.scored  # dropped with its branch
     assert second.to_json_dict() == evaluate(moved, truth).to_json_dict()
     assert first.n_matched == 2 and second.n_matched == 1 and second.n_spurious == 1
+
+
+def _spur(base_z_m: float, yaw_deg: float, reach_m: float = 0.02) -> GTBranch:
+    """A tree's own spur: a short stub leaving the primary (the ground truth's ``details``)."""
+    return _secondary(base_z_m, yaw_deg, length_m=reach_m, elevation_deg=10.0)
+
+
+def test_reconstructed_spur_is_a_spur_not_spurious() -> None:
+    truth = _truth()
+    spur = _spur(0.45, 60.0)  # reach 2 cm: the scorer only keeps reconstructions over 2.5 cm
+    # The reconstruction overshoots the spur's 2 cm reach (3.5 cm, a little off its axis).
+    seen = _secondary(0.45, 62.0, length_m=0.035, elevation_deg=10.0, offset_m=(0, 0.002, 0))
+    model = _model(truth.primary, [*truth.secondaries, seen])
+    without = evaluate(model, truth)
+    assert without.n_spurious == without.n_spurious_paper == 1  # nothing known there
+    metrics = evaluate(model, truth, surroundings={"detail": [spur]})
+    assert metrics.reconstructed_classes == ["match", "match", "match", "detail"]
+    assert (metrics.n_spurious, metrics.n_spurious_paper) == (0, 1)
+    assert metrics.spurious_pct == 0.0
+    assert metrics.precision_pct == 100.0  # a spur seen is the tree's, not a false branch
+
+
+def test_neighbour_branch_and_wire_are_classed_as_such() -> None:
+    truth = _truth()
+    # A neighbour's branch crossing 8 cm in front of the primary at 0.55 m, along x.
+    x = np.linspace(-0.15, 0.15, 31)
+    crossing = GTBranch(np.column_stack([x, np.full_like(x, 0.12), np.full_like(x, 0.55)]),
+                        np.full(len(x), 0.003))  # fmt: skip
+    wire = GTBranch(np.array([[-2.0, 0.25, 0.65], [2.0, 0.25, 0.65]]), np.full(2, 0.0015))
+    post = GTBranch(np.array([[0.3, 0.25, 0.0], [0.3, 0.25, 1.8]]), np.full(2, 0.04))
+    seen_crossing = GTBranch(crossing.points[8:20] + np.array([0, 0.004, 0]), crossing.radii[8:20])
+    seen_wire = GTBranch(np.array([[0.02, 0.25, 0.652], [0.10, 0.25, 0.648]]), np.full(2, 0.002))
+    nothing = _secondary(0.70, 300.0, offset_m=(0.0, 0.0, 0.0))  # no branch, nothing there
+    model = _model(truth.primary, [seen_crossing, truth.secondaries[0], seen_wire, nothing])
+    surroundings = {"neighbour": [crossing], "trellis": [wire, post]}
+    metrics = evaluate(model, truth, surroundings=surroundings)
+    assert metrics.reconstructed_classes == ["neighbour", "match", "trellis", "spurious"]
+    assert metrics.n_spurious == 1 and metrics.n_spurious_paper == 3
+    assert metrics.class_counts["neighbour"] == metrics.class_counts["trellis"] == 1
+    assert metrics.precision_pct == pytest.approx(25.0)  # 1 match of 4 held reconstructions
+    # The same through a prepared index; surroundings twice is an error.
+    index = index_truth(truth, surroundings=surroundings)
+    again = evaluate(model, truth, truth_index=index)
+    assert again.reconstructed_classes == metrics.reconstructed_classes
+    with pytest.raises(ValueError, match="surroundings"):
+        evaluate(model, truth, truth_index=index, surroundings=surroundings)
+    with pytest.raises(ValueError, match="unknown surrounding kind 'fence'"):
+        index_truth(truth, surroundings={"fence": [wire]})
+
+
+def test_classes_sum_to_the_reconstructed_count_and_survive_json() -> None:
+    truth = _truth()
+    stub = _secondary(0.45, 60.0, length_m=0.02)  # short
+    copy = _secondary(0.40, 2.0, offset_m=(0.0, 0.003, 0.0))  # a duplicate of branch 0
+    far = _secondary(0.55, 180.0, offset_m=(0.0, 0.0, 0.2))  # nothing there
+    model = _model(truth.primary, [*truth.secondaries, stub, copy, far])
+    metrics = evaluate(model, truth, surroundings={"detail": [_spur(0.45, 60.0)]})
+    assert sum(metrics.class_counts.values()) == len(model.secondaries)
+    assert metrics.class_counts["match"] == metrics.n_matched == 3
+    assert metrics.class_counts["duplicate"] == metrics.n_duplicates == 1
+    assert metrics.class_counts["short"] == 1 and metrics.n_spurious == 1
+    loaded = TreeMetrics.from_json_dict(json.loads(json.dumps(metrics.to_json_dict())))
+    assert loaded.reconstructed_classes == metrics.reconstructed_classes
+    assert loaded.class_counts == metrics.class_counts
+    row = metrics.to_dict()
+    assert row["n_class_duplicate"] == 1 and row["n_spurious_paper"] == 1
+    stats = aggregate([metrics, metrics])
+    assert stats["n_class_match"] == 6 and stats["precision_pct"] == pytest.approx(60.0)
+    old = metrics.to_json_dict()
+    del old["reconstructed_classes"]  # a trial saved before the classes: re-score it
+    with pytest.raises(KeyError, match="re-score"):
+        TreeMetrics.from_json_dict(old)

@@ -118,6 +118,11 @@ class EnvConfig:
         score_cache: Score against the ground truth only when the score can have changed (the
             model's arrays or the secondaries in scope; :mod:`branch_gym.env.score_cache`);
             False scores after every step (the reference path). Same results either way.
+        paper_scoring: Score the reward as the paper (ids up to v2): a spurious branch is any
+            reconstruction that is a candidate of no side branch, the tree's own spurs, a
+            neighbour's branch or a wire included, and branches are in scope up to the height
+            reached. False (v3 and later): spurious means nothing there, and branches are in
+            scope up to the planned end height (:mod:`recon.metrics`).
         observation: Observation image size and scales.
         reward: Reward weights.
         scan: The scan (tracker, segmenter, tree distribution, speed, end height, world).
@@ -130,6 +135,7 @@ class EnvConfig:
     flatten: bool = False
     info_timings: bool = False
     score_cache: bool = True
+    paper_scoring: bool = False
     coverage: CoverageConfig | None = None
     branch_value_s: tuple[float, float] | None = None
     observation: ObservationConfig = field(default_factory=ObservationConfig)
@@ -179,6 +185,7 @@ class EnvConfig:
             ("flatten", bool),
             ("info_timings", bool),
             ("score_cache", bool),
+            ("paper_scoring", bool),
             ("observation", ObservationConfig),
             ("reward", RewardConfig),
             ("scan", ScanConfig),

@@ -32,7 +32,13 @@ from branch_gym.env.rendering import camera_frame, follow_in_gui, require_displa
 from branch_gym.env.reward import REWARD_TERMS, RewardTracker
 from branch_gym.env.score_cache import ScoreCache
 from branch_gym.scan import ScanSession
-from branch_gym.scoring import ScanResult, score_scan
+from branch_gym.scoring import (
+    ScanResult,
+    scan_metrics_config,
+    score_scan,
+    session_surroundings,
+)
+from branch_gym.surroundings import Surroundings
 from recon.metrics import TreeMetrics
 from recon.modeler import IterationReport, Outcome
 from recon.timing import stage_timer
@@ -265,7 +271,11 @@ class BranchScanEnv(gym.Env):
             )
         self._price = 0.0
         self._reward = RewardTracker(config.reward)
-        self._scores = ScoreCache(config.score_cache)
+        self._scores = ScoreCache(
+            config.score_cache,
+            scan_metrics_config(config.scan, count_unreached_as_missed=not config.paper_scoring),
+        )
+        self._surroundings: Surroundings | None = None
         self._seed: int | None = None
         self._over = True
         self._last_report: IterationReport | None = None
@@ -288,6 +298,9 @@ class BranchScanEnv(gym.Env):
             )
             self._reward.reset(penalty)
             self._scores.reset()
+            self._surroundings = (
+                None if self.config.paper_scoring else session_surroundings(self._session)
+            )
             if self._coverage is not None:
                 self._coverage.reset()
             self._actions.reset()
@@ -376,7 +389,13 @@ class BranchScanEnv(gym.Env):
     def _score(self, env_ms: dict[str, float]) -> TreeMetrics:
         session = self._session
         with stage_timer(env_ms, "metrics_ms"):
-            return self._scores.score(session.model, session.tree, session.camera_height_m)
+            return self._scores.score(
+                session.model,
+                session.tree,
+                session.camera_height_m,
+                self._surroundings,
+                session.config.end_height_m,
+            )
 
     def _observe(self, env_ms: dict[str, float], reports: list[IterationReport]) -> Any:
         """The observation; the step's iterations (``reports``) enter the coverage memory."""

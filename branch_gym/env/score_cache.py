@@ -15,6 +15,7 @@ from dataclasses import replace
 import numpy as np
 
 from branch_gym.sim.tree.ground_truth import TreeGT
+from branch_gym.surroundings import Surroundings
 from recon.metrics import MetricsConfig, TreeMetrics, TruthIndex, evaluate, index_truth
 from recon.model import BranchModel, TreeModel
 
@@ -61,8 +62,23 @@ class ScoreCache:
         self._fingerprint: _Fingerprint = ()
         self._metrics: TreeMetrics | None = None
 
-    def score(self, model: TreeModel, tree: TreeGT, scanned_top_z_m: float) -> TreeMetrics:
-        """The model's metrics against ``tree`` up to ``scanned_top_z_m``."""
+    def score(
+        self,
+        model: TreeModel,
+        tree: TreeGT,
+        scanned_top_z_m: float,
+        surroundings: Surroundings | None = None,
+        planned_top_z_m: float | None = None,
+    ) -> TreeMetrics:
+        """The model's metrics against ``tree`` with the camera at ``scanned_top_z_m``.
+
+        Args:
+            model: The reconstruction.
+            tree: The ground truth.
+            scanned_top_z_m: The height the scan reached (m).
+            surroundings: The structures around ``tree`` (read once per tree).
+            planned_top_z_m: The height the scan is to reach (m; ``recon.metrics.evaluate``).
+        """
         base_z = np.array([branch.points[0][2] for branch in tree.secondaries])
         in_scope = int(np.sum(base_z <= scanned_top_z_m + self.config.gt_base_margin_m))
         key = (id(tree), in_scope)
@@ -76,7 +92,15 @@ class ScoreCache:
             return replace(self._metrics, scanned_top_z_m=float(scanned_top_z_m))
         self.evaluations += 1
         if self._truth is not tree:  # the ground truth is prepared once per tree
-            self._truth, self._truth_index = tree, index_truth(tree, self.config)
-        metrics = evaluate(model, tree, self.config, scanned_top_z_m, truth_index=self._truth_index)
+            index = index_truth(tree, self.config, surroundings)
+            self._truth, self._truth_index = tree, index
+        metrics = evaluate(
+            model,
+            tree,
+            self.config,
+            scanned_top_z_m,
+            truth_index=self._truth_index,
+            planned_top_z_m=planned_top_z_m,
+        )
         self._key, self._fingerprint, self._metrics = key, fingerprint, metrics
         return metrics

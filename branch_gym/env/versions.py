@@ -15,10 +15,10 @@ version changed (:func:`version_history`).
 'discrete_hold'
 >>> env_version("BranchScanDiscrete-v2").features
 ('image', 'vector', 'coverage', 'price', 'in_front')
->>> env_version("BranchScan-v1").retired, env_version("BranchScan-v2").retired
+>>> env_version("BranchScan-v2").retired, env_version("BranchScan-v3").retired
 (True, False)
 >>> sorted(env_version("BranchScan-v1").env_kwargs())
-['action_type', 'branch_value_s', 'coverage']
+['action_type', 'branch_value_s', 'coverage', 'paper_scoring']
 
 ``tests/test_env_versions.py`` checks that ``docs/env.md`` shows :func:`markdown_table` and
 :func:`version_history` as they are.
@@ -90,6 +90,9 @@ class EnvVersion:
         features: The observation's parts (keys of :data:`OBSERVATION_FEATURES`).
         change: What this version changed against the previous one of its name (the Version
             History line).
+        paper_scoring: The reward scores as the paper (``EnvConfig.paper_scoring``: any
+            reconstruction matching no side branch is spurious, spurs and neighbours included;
+            branches in scope up to the height reached); False from v3 on.
         note: Said after "current" in the table: what a current id lacks of the newest
             features (the Flat and Trigger ids stayed at v0).
     """
@@ -98,6 +101,7 @@ class EnvVersion:
     action_type: str
     features: tuple[str, ...]
     change: str
+    paper_scoring: bool = True
     note: str = ""
 
     def __post_init__(self) -> None:
@@ -127,6 +131,8 @@ class EnvVersion:
     def env_kwargs(self) -> dict[str, Any]:
         """The :class:`branch_gym.env.BranchScanEnv` keywords this id is registered with."""
         kwargs: dict[str, Any] = {"action_type": self.action_type}
+        if self.paper_scoring:
+            kwargs["paper_scoring"] = True
         if "flat" in self.features:
             kwargs["flatten"] = True
         if "coverage" in self.features:
@@ -166,6 +172,18 @@ ENV_VERSIONS: tuple[EnvVersion, ...] = (
         "the coverage memory's IN_FRONT channel (a branch pointing at the lens)",
     ),
     EnvVersion("BranchScanDiscrete-v2", "discrete_hold", _V2, "as BranchScan-v2"),
+    EnvVersion(
+        "BranchScan-v3",
+        "continuous",
+        _V2,
+        "the reward's spurious branch is one with nothing there (a reconstructed spur, stub, "
+        "neighbour's branch or wire is classed as such and not charged); every branch up to the "
+        "planned end height is in scope (recon.metrics)",
+        paper_scoring=False,
+    ),
+    EnvVersion(
+        "BranchScanDiscrete-v3", "discrete_hold", _V2, "as BranchScan-v3", paper_scoring=False
+    ),
 )
 ENV_IDS = tuple(v.env_id for v in ENV_VERSIONS)
 

@@ -19,19 +19,24 @@ import json
 import math
 import re
 import subprocess
-from dataclasses import asdict, dataclass, field, is_dataclass
+from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
+from branch_gym.attribution import branch_rows, miss_counts
 from branch_gym.files import PARTIAL_WRITE_GLOB, write_json_atomic
 from branch_gym.sim.tree.ground_truth import TreeGT
+from branch_gym.surroundings import Surroundings, surroundings_from_json, surroundings_to_json
 from recon.config import REMOVED_MODELER_FIELDS
-from recon.metrics import TreeMetrics
+from recon.metrics import MetricsConfig, TreeMetrics, evaluate
 from recon.model import TreeModel
 
-TRIAL_FORMAT = 1
+# 2: the structures around the tree and the planned top height are saved, the metrics class
+# every reconstructed side branch (recon.metrics); format-1 files predate the classes.
+TRIAL_FORMAT = 2
 TRIALS_DIR = "trials"
 PACKAGE = "branch_gym"  # the distribution whose version names the code outside a git checkout
 GIT_TIMEOUT_S = 10.0
@@ -57,6 +62,10 @@ class TrialRecord:
             floats as strings; empty in trial files written before the attribution existed.
         code_version: :func:`code_version` of the code that ran the trial; None in trial files
             written before it was recorded.
+        surroundings: The structures around the tree by kind
+            (:func:`branch_gym.surroundings.surroundings_of`): with ``model``, ``truth`` and the
+            heights, all that :meth:`rescored` needs.
+        planned_top_z_m: The height the scan was to reach (m).
     """
 
     policy: str
@@ -71,6 +80,8 @@ class TrialRecord:
     failure: str | None
     branches: list[dict[str, Scalar]] = field(default_factory=list)
     code_version: str | None = None
+    surroundings: Surroundings = field(default_factory=dict)
+    planned_top_z_m: float = float("nan")
 
     @classmethod
     def from_scan(
@@ -100,6 +111,39 @@ class TrialRecord:
             failure=None if result.failure is None else str(result.failure),
             branches=[{k: json_scalar(v) for k, v in row.items()} for row in result.branches],
             code_version=code_version,
+            surroundings=result.surroundings,
+            planned_top_z_m=float(result.planned_top_z_m),
+        )
+
+    def rescored(self, config: MetricsConfig) -> TrialRecord:
+        """The same trial scored again under ``config``, without re-running the scan.
+
+        The metrics, the row's metric columns and the branch rows are recomputed from the saved
+        model, ground truth, surroundings and heights (the views' visibility as saved).
+        """
+        metrics = evaluate(
+            self.model,
+            self.truth,
+            config,
+            scanned_top_z_m=self.metrics.scanned_top_z_m,
+            surroundings=self.surroundings,
+            planned_top_z_m=self.planned_top_z_m,
+        )
+        row = dict(self.row)
+        row.update({str(k): json_scalar(v) for k, v in metrics.to_dict().items()})
+        visibility = SimpleNamespace(
+            peak_pixels=np.array([int(b["peak_visible_px"]) for b in self.branches], int),
+            peak_view_angle_deg=np.array(
+                [float(b["peak_view_angle_deg"]) for b in self.branches], float
+            ),
+        )
+        rows = branch_rows(self.truth, metrics, visibility) if self.branches else []
+        row.update(miss_counts(rows))
+        return replace(
+            self,
+            metrics=metrics,
+            row=row,
+            branches=[{k: json_scalar(v) for k, v in r.items()} for r in rows],
         )
 
     def to_json_dict(self) -> dict:
@@ -118,11 +162,18 @@ class TrialRecord:
             "truth": self.truth.to_dict(),
             "branches": self.branches,
             "code_version": self.code_version,
+            "surroundings": surroundings_to_json(self.surroundings),
+            "planned_top_z_m": json_scalar(self.planned_top_z_m),
         }
 
     @classmethod
     def from_json_dict(cls, data: dict) -> TrialRecord:
         """Inverse of :meth:`to_json_dict`."""
+        if data.get("format") == 1:
+            raise ValueError(
+                "trial file format 1 was written before the classes of reconstructed side "
+                "branches (spurs, neighbours, trellis, nothing there) and carries no surroundings"
+            )
         if data.get("format") != TRIAL_FORMAT:
             raise ValueError(f"unknown trial file format {data.get('format')!r}")
         return cls(
@@ -138,6 +189,8 @@ class TrialRecord:
             failure=data["failure"],
             branches=list(data.get("branches", [])),
             code_version=data.get("code_version"),
+            surroundings=surroundings_from_json(data["surroundings"]),
+            planned_top_z_m=float(data["planned_top_z_m"]),
         )
 
 
