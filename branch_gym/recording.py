@@ -25,6 +25,8 @@ from dataclasses import asdict
 from pathlib import Path
 
 from branch_gym.scan import ScanSession
+from branch_gym.scoring import scan_metrics_config, session_surroundings
+from branch_gym.surroundings import surroundings_to_json
 from recon.frame import Frame
 from recon.io.distortion import CameraModel
 from recon.io.folder import ScanWriter
@@ -33,6 +35,7 @@ logger = logging.getLogger(__name__)
 
 TRUTH_FILE = "truth.json"
 RECORDED_MODEL_FILE = "recorded_model.json"
+SURROUNDINGS_FILE = "surroundings.json"  # the structures the scoring classes branches against
 
 
 class ScanRecorder:
@@ -104,6 +107,8 @@ def _finish(writer: ScanWriter, session: ScanSession, seed: int, policy: str) ->
     model = session.model
     writer.write_file(TRUTH_FILE, json.dumps(session.tree.to_dict()))
     writer.write_file(RECORDED_MODEL_FILE, json.dumps(model.to_dict()))
+    surroundings = surroundings_to_json(session_surroundings(session))
+    writer.write_file(SURROUNDINGS_FILE, json.dumps(surroundings))
     writer.metadata.update(
         {
             "created_by": "branch_gym.recording",
@@ -117,6 +122,12 @@ def _finish(writer: ScanWriter, session: ScanSession, seed: int, policy: str) ->
             },
             "scanned_top_z_m": session.camera_height_m,
             "truth": TRUTH_FILE,
+            # How the scan was scored: the replay scores the same way (recon.replay).
+            "scoring": {
+                "metrics": asdict(scan_metrics_config(config)),
+                "planned_top_z_m": config.end_height_m,
+                "surroundings": SURROUNDINGS_FILE,
+            },
             "recorded_model": RECORDED_MODEL_FILE,
             "image_format": writer.image_format,
             "lossless": writer.image_format == "png",

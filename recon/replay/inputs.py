@@ -7,15 +7,18 @@ from __future__ import annotations
 import importlib
 import json
 import logging
-from dataclasses import fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import ClassVar
+
+import numpy as np
 
 from recon.config import REMOVED_MODELER_FIELDS, ModelerConfig, removed_field_message
 from recon.io.folder import ScanFormatError
 from recon.io.rescale import PIPELINE_FOCAL_PX, RescaledSource
 from recon.io.source import ScanSource
-from recon.model import TreeModel
+from recon.metrics import MetricsConfig
+from recon.model import BranchModel, TreeModel
 from recon.segmentation.spec import SegmenterSpec, SpecKind, is_learned_segmenter
 
 logger = logging.getLogger(__name__)
@@ -130,3 +133,50 @@ def at_working_focal_length(
     rescaled = RescaledSource(source, focal_px)
     intrinsics = source.intrinsics
     return source if rescaled.size == (intrinsics.width, intrinsics.height) else rescaled
+
+
+@dataclass(frozen=True)
+class Scoring:
+    """How a recording with ground truth is scored: as the scan that recorded it was.
+
+    Attributes:
+        config: The scoring rules (the recording's ``scoring.metrics``, else the authors').
+        planned_top_z_m: The height the scan was to reach (m), None when not recorded: then
+            the scope ends where the scan did.
+        surroundings: The structures around the tree by kind (``scoring.surroundings``, a JSON
+            file of ``{kind: [{"points", "radii"}]}``), empty when not recorded.
+    """
+
+    config: MetricsConfig = field(default_factory=MetricsConfig)
+    planned_top_z_m: float | None = None
+    surroundings: dict[str, list[BranchModel]] = field(default_factory=dict)
+
+
+def load_scoring(source: ScanSource) -> Scoring:
+    """The scoring a simulated recording carries in its metadata (``scoring``), or the authors'.
+
+    Raises:
+        ScanFormatError: a malformed ``scoring`` entry or an unreadable surroundings file.
+    """
+    recorded = source.metadata.get("scoring")
+    if recorded is None:
+        return Scoring()
+    try:
+        config = MetricsConfig(**recorded["metrics"])
+        planned = float(recorded["planned_top_z_m"])
+        surroundings = {}
+        folder = getattr(source, "path", None)
+        name = recorded.get("surroundings")
+        if name is not None and folder is not None:
+            data = json.loads((Path(folder) / str(name)).read_text())
+            surroundings = {
+                str(kind): [
+                    BranchModel(np.asarray(b["points"]), np.asarray(b["radii"])) for b in items
+                ]
+                for kind, items in data.items()
+            }
+    except (OSError, ValueError, KeyError, TypeError) as error:
+        raise ScanFormatError(
+            f"{source.name}: cannot read the recorded scoring ({error})"
+        ) from None
+    return Scoring(config, planned, surroundings)

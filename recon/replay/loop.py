@@ -28,6 +28,7 @@ from recon.replay.inputs import (
     ReplayError,
     at_working_focal_length,
     learned_masks,
+    load_scoring,
     load_segmenter,
     load_truth,
     modeler_settings,
@@ -178,7 +179,15 @@ def replay(
             top = source.metadata.get("scanned_top_z_m")
             path = np.array(log.camera_path)
             top = float(top) if top is not None else float(path[:, 2].max())
-            metrics = evaluate(model, truth, scanned_top_z_m=top)
+            scoring = load_scoring(source)
+            metrics = evaluate(
+                model,
+                truth,
+                scoring.config,
+                scanned_top_z_m=top,
+                surroundings=scoring.surroundings,
+                planned_top_z_m=top if scoring.planned_top_z_m is None else scoring.planned_top_z_m,
+            )
         files = write_outputs(tmp, source, model, log, video, metrics, truth, config)
         wall = time.perf_counter() - wall_start
         summary = replay_summary(
