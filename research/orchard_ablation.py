@@ -30,12 +30,12 @@ from tqdm import tqdm
 
 from agents.factory import AGENTS
 from agents.paper import paper_column
+from branch_gym.cli_options import add_scan_options, scan_config
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.report import format_comparison
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import WorldConfig
-from recon.config import add_modeler_argument, modeler_overrides
 
 POLICIES = ("none", "periodic:22.5:1.5")
 # The parts each variant leaves out (OrchardRowConfig.left_out).
@@ -66,19 +66,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", type=Path, required=True)
-    parser.add_argument(
-        "--segmenter", default="gt", help="masks: gt (the renderer's labels) or learned[:PATH]"
-    )
-    add_modeler_argument(
-        parser, "over the defaults, e.g. primary_max_turn_deg=null primary_model_vouches=false"
+    add_scan_options(
+        parser,
+        ("segmenter", "modeler"),
+        defaults={"segmenter": "gt"},
+        modeler_example="over the defaults, e.g. primary_max_turn_deg=null "
+        "primary_model_vouches=false",
     )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    scan = ScanConfig(world=variant_world(args.variant), segmenter=args.segmenter)
-    if args.modeler:
-        scan = scan.replace(
-            modeler=dataclasses.replace(scan.modeler, **modeler_overrides(args.modeler))
-        )
+    scan = scan_config(args, ScanConfig(world=variant_world(args.variant)))
     config = EvalConfig(POLICIES, args.trees, args.seed, args.workers, scan, policy_factory=AGENTS)
     bar = tqdm(total=len(config.keys), unit="trial")
     outcome = run_evaluation(

@@ -21,7 +21,6 @@ tracking on them can take other iterations than the live run's.
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -29,11 +28,9 @@ import numpy as np
 
 import recon.modeler as modeler_module
 from agents.factory import AGENTS
-from branch_gym.env.config import tree_config
+from branch_gym.cli_options import add_scan_options, scan_config
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
-from branch_gym.sim.world import WorldConfig
-from recon.config import add_modeler_argument, modeler_overrides
 
 _TILE_COLUMNS = 4
 
@@ -96,18 +93,17 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, required=True, help="tree seed")
     parser.add_argument("--policy", default="none", help="policy spec (eval.py --policies)")
-    parser.add_argument("--world", default="orchard", choices=("clean", "orchard"))
-    parser.add_argument("--tree", default="paper", help="tree preset (eval.py --tree)")
-    parser.add_argument("--segmenter", default="learned", help="'gt' or learned[:PATH]")
-    add_modeler_argument(parser, "over the defaults, e.g. primary_max_turn_deg=null")
+    add_scan_options(
+        parser,
+        ("world", "tree", "segmenter", "modeler"),
+        defaults={"world": "orchard", "tree": "paper", "segmenter": "learned"},
+        modeler_example="over the defaults, e.g. primary_max_turn_deg=null",
+    )
     parser.add_argument("--first", type=int, default=1, help="first iteration drawn")
     parser.add_argument("--last", type=int, default=None, help="last iteration drawn")
     parser.add_argument("--out", type=Path, default=None, help="PNG of the tiles")
     args = parser.parse_args()
-    world = WorldConfig.preset(args.world, tree=tree_config(args.tree))
-    scan = ScanConfig(world=world).replace(segmenter=args.segmenter)
-    if args.modeler:
-        scan = scan.replace(modeler=replace(scan.modeler, **modeler_overrides(args.modeler)))
+    scan = scan_config(args)
     entries = trace(args.seed, args.policy, scan)
     last = args.last or len(entries)
     chosen = [e for e in entries if args.first <= e["report"].index <= last]

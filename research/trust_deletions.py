@@ -24,6 +24,7 @@ import argparse
 import numpy as np
 
 from agents.factory import AGENTS
+from branch_gym.cli_options import add_scan_options
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
 from branch_gym.sim.world import World, WorldConfig
@@ -103,7 +104,7 @@ def main() -> None:
     parser.add_argument("--policy", required=True, help="policy spec, e.g. privileged")
     parser.add_argument("--branch", type=int, required=True, help="ground-truth side branch")
     parser.add_argument("--radius-mm", type=float, default=15.0)
-    parser.add_argument("--segmenter", default="learned", help="learned (default) or gt: labels")
+    add_scan_options(parser, ("segmenter",), defaults={"segmenter": "learned"})
     args = parser.parse_args()
     trace(args.seed, args.policy, args.branch, args.radius_mm / 1000.0, args.segmenter)
 

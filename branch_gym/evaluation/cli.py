@@ -32,12 +32,11 @@ import logging
 import sys
 import traceback
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 
 from tqdm import tqdm
 
-from branch_gym.env.config import TREE_PRESETS, scan_with_tree
+from branch_gym.cli_options import add_scan_options, scan_config
 from branch_gym.evaluation.config import EvalConfig, TrialError
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.ray_backend import (
@@ -48,9 +47,6 @@ from branch_gym.evaluation.ray_backend import (
 from branch_gym.evaluation.report import failure_reasons, format_comparison
 from branch_gym.evaluation.runner import ConfigMismatchError
 from branch_gym.policy import PolicyFactory
-from branch_gym.scan import ScanConfig
-from branch_gym.sim.world import WORLDS, WorldConfig
-from recon.config import add_modeler_argument, modeler_overrides
 
 EXIT_USAGE = 2
 EXIT_TRIAL_FAILED = 1
@@ -77,24 +73,7 @@ def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=0, help="first tree seed (default 0)")
     add_backend_arguments(parser, 1, "trials run at once: worker processes, or Ray tasks in flight")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument(
-        "--world",
-        choices=WORLDS,
-        default="clean",
-        help="clean (default): the paper's world; orchard: sky, row, trellis, camera model",
-    )
-    parser.add_argument(
-        "--tree", choices=TREE_PRESETS, default="paper", help="tree distribution (default paper)"
-    )
-    parser.add_argument("--tracker", choices=("lk", "oracle"), help="point tracker")
-    parser.add_argument(
-        "--segmenter", help="segmenter spec: gt | noisy:mild|moderate|severe | learned[:PATH]"
-    )
-    parser.add_argument("--speed", type=float, metavar="MPS", help="camera speed (m/s)")
-    parser.add_argument(
-        "--end-height", type=float, metavar="M", help="scan end height (m); lower for quick runs"
-    )
-    add_modeler_argument(parser, "over the defaults, e.g. secondary_trust_tolerance_px=0")
+    add_scan_options(parser, defaults={"world": "clean", "tree": "paper"})
     parser.add_argument(
         "--record",
         type=Path,
@@ -133,17 +112,8 @@ def main(
     parser = build_parser(factory)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
-    changes = {
-        "tracker": args.tracker,
-        "segmenter": args.segmenter,
-        "speed_mps": args.speed,
-        "end_height_m": args.end_height,
-    }
     try:
-        scan = scan_with_tree(ScanConfig(world=WorldConfig.preset(args.world)), args.tree)
-        scan = scan.replace(**{k: v for k, v in changes.items() if v is not None})
-        if args.modeler:
-            scan = scan.replace(modeler=replace(scan.modeler, **modeler_overrides(args.modeler)))
+        scan = scan_config(args)
         config = EvalConfig(
             tuple(args.policies),
             args.trees,

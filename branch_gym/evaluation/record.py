@@ -10,6 +10,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from branch_gym.cli_options import add_scan_options, scan_config
 from branch_gym.evaluation.episodes import Recording, run_trial
 from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
@@ -53,15 +54,18 @@ def main(argv: list[str] | None, factory: PolicyFactory) -> int:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--policy", default="none", help=f"policy spec: {factory.spec_forms}")
-    parser.add_argument("--end-height", type=float, default=ScanConfig.end_height_m)
-    parser.add_argument("--segmenter", default="gt")
+    add_scan_options(
+        parser,
+        ("end_height", "segmenter"),
+        defaults={"end_height": ScanConfig.end_height_m, "segmenter": "gt"},
+    )
     parser.add_argument("--image-format", choices=("png", "jpg"), default="png")
     parser.add_argument("--jpeg-quality", type=int, default=95)
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--overwrite", action="store_true")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING)
-    config = ScanConfig(end_height_m=args.end_height, segmenter=args.segmenter)
+    config = scan_config(args)
     result = record_scan(
         args.seed,
         args.policy,

@@ -28,6 +28,7 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+from branch_gym.cli_options import add_scan_options, scan_changes
 from branch_gym.config_utils import load_config
 from branch_gym.env.versions import ENV_IDS
 from branch_gym.training.config import TrainConfig
@@ -51,11 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, help="run seed")
     parser.add_argument("--out", type=Path, required=True, help="run folder")
     parser.add_argument("--resume", action="store_true", help="continue from the last checkpoint")
-    parser.add_argument("--tracker", choices=("lk", "oracle"), help="point tracker (default lk)")
-    parser.add_argument("--segmenter", help="gt | noisy:mild | noisy:moderate | noisy:severe")
-    parser.add_argument("--tree", help="tree preset: paper | cluttered | hard")
-    parser.add_argument("--end-height", type=float, metavar="M", help="scan end height (m)")
-    parser.add_argument("--speed", type=float, metavar="MPS", help="scan speed (m/s)")
+    add_scan_options(parser, ("tracker", "segmenter", "tree", "end_height", "speed"))
     parser.add_argument("--checkpoint-every", type=int, metavar="STEPS", help="checkpoint period")
     parser.add_argument("--eval-every", type=int, metavar="STEPS", help="evaluation period; 0 off")
     parser.add_argument("--eval-trees", type=int, metavar="N", help="held-out trees per evaluation")
@@ -137,11 +134,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "timesteps": args.timesteps,
         "n_envs": args.n_envs,
         "seed": args.seed,
-        "tracker": args.tracker,
-        "segmenter": args.segmenter,
-        "tree": args.tree,
-        "end_height_m": args.end_height,
-        "speed_mps": args.speed,
+        **scan_changes(args),
         "checkpoint_every": args.checkpoint_every,
         "eval_every": args.eval_every,
         "eval_trees": args.eval_trees,
@@ -178,9 +171,7 @@ def main(argv: list[str] | None = None, find_model: ModelFinder = existing_file)
     except (FileNotFoundError, ValueError, TypeError) as exc:
         parser.error(str(exc))
     try:
-        result = train(
-            config, args.out, resume=args.resume, progress=True, find_model=find_model
-        )
+        result = train(config, args.out, resume=args.resume, progress=True, find_model=find_model)
     except (FileExistsError, FileNotFoundError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -200,4 +191,3 @@ def main(argv: list[str] | None = None, find_model: ModelFinder = existing_file)
         )
     print(f"wrote {result.final_model}")
     return 0
-

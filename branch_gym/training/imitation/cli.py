@@ -12,13 +12,12 @@ import logging
 from dataclasses import replace
 from pathlib import Path
 
+from branch_gym.cli_options import add_scan_options, scan_changes
 from branch_gym.config_utils import load_config
-from branch_gym.env.config import TREE_PRESETS
 from branch_gym.env.versions import ENV_IDS
 from branch_gym.evaluation.ray_backend import add_backend_arguments
 from branch_gym.privileged import HOME_SPEC
 from branch_gym.privileged import SPEC_KIND as PRIVILEGED_SPEC
-from branch_gym.sim.world import WORLDS
 from branch_gym.training.imitation.config import ImitationConfig
 from branch_gym.training.imitation.cost_to_go import ROLLOUTS
 from branch_gym.training.imitation.rounds import imitate
@@ -38,10 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_backend_arguments(parser, 2, "labelling processes, or CPUs of a private local Ray instance")
     parser.add_argument("--resume", action="store_true", help="continue the run in --out")
     parser.add_argument("--env", choices=ENV_IDS, help="a discrete env id")
-    parser.add_argument("--tracker", choices=("lk", "oracle"))
-    parser.add_argument("--segmenter", help="gt | noisy:mild|moderate|severe | learned[:PATH]")
-    parser.add_argument("--world", choices=WORLDS, help="clean (default) or orchard")
-    parser.add_argument("--tree", choices=TREE_PRESETS, help="tree distribution preset")
+    add_scan_options(parser, ("tracker", "segmenter", "world", "tree"))
     parser.add_argument(
         "--init-model", help="start the students from this model's weights (same env and network)"
     )
@@ -113,10 +109,7 @@ def config_from_args(args: argparse.Namespace) -> ImitationConfig:
     tracker = args.tracker or train.tracker
     train_changes = {
         "env_id": args.env,
-        "tracker": args.tracker,
-        "segmenter": args.segmenter,
-        "world": args.world,
-        "tree": args.tree,
+        **scan_changes(args),
         "init_model": args.init_model,
         "seed": args.seed,
         "recurrent": True if args.recurrent else None,
@@ -176,4 +169,3 @@ def main(argv: list[str] | None = None, find_model: ModelFinder = existing_file)
         return EXIT_USAGE
     print(f"wrote {final}")
     return 0
-
