@@ -5,14 +5,15 @@ checks use;
 :func:`flatten_dict` turns a nested config dict into dotted keys for "what changed" messages;
 :func:`read_config_file` reads a recipe (``configs/*.json``) that a command takes with
 ``--config``: the fields of its config dataclass that differ from their defaults, and a
-``description``.
+``description``; :func:`load_config` builds a command's config: the defaults, then the recipe,
+then the options given (:func:`with_overrides`).
 """
 
 from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import fields
+from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ __all__ = [
     "is_number",
     "load_config",
     "read_config_file",
+    "with_overrides",
 ]
 
 # A recipe's words for people: what it makes and how it was chosen (not a config field).
@@ -87,11 +89,38 @@ def check_keys(cls: type, data: Mapping[str, Any]) -> None:
         )
 
 
-def load_config(cls: type, path: str | Path | None) -> Any:
-    """A config dataclass from a recipe file (its ``from_dict``), or its defaults for None.
+def with_overrides(config: Any, overrides: Mapping[str, Any]) -> Any:
+    """``config`` (a dataclass) with the values given: None leaves a field as it is, a dict
+    goes into a nested config field the same way.
+
+    >>> from branch_gym.training.config import TrainConfig
+    >>> config = with_overrides(TrainConfig(), {"seed": 7, "n_envs": None, "ppo": {"gamma": 0.9}})
+    >>> config.seed, config.n_envs == TrainConfig().n_envs, config.ppo.gamma
+    (7, True, 0.9)
+
+    Raises:
+        ValueError, TypeError: a bad value or an unknown field (the dataclass's own checks).
+    """
+    changes = {}
+    for name, value in overrides.items():
+        if value is None:
+            continue
+        current = getattr(config, name, None)
+        if isinstance(value, Mapping) and is_dataclass(current):
+            value = with_overrides(current, value)
+        changes[name] = value
+    return replace(config, **changes)
+
+
+def load_config(
+    cls: type, path: str | Path | None, overrides: Mapping[str, Any] | None = None
+) -> Any:
+    """A command's config: ``cls``'s defaults, then a recipe file (its ``from_dict``) unless
+    ``path`` is None, then the ``overrides`` given (:func:`with_overrides`: the options).
 
     Raises:
         FileNotFoundError: no such file (named).
         ValueError: a bad file or value (named).
     """
-    return cls() if path is None else cls.from_dict(read_config_file(path))
+    config = cls() if path is None else cls.from_dict(read_config_file(path))
+    return with_overrides(config, overrides or {})

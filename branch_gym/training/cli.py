@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
-from dataclasses import replace
 from pathlib import Path
 
 from branch_gym.cli_options import add_scan_options, scan_changes
@@ -116,7 +115,6 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         FileNotFoundError: no such recipe file.
         ValueError: a bad recipe or value (named).
     """
-    config = load_config(TrainConfig, args.config)
     ppo = {
         "n_steps": args.n_steps,
         "batch_size": args.batch_size,
@@ -147,11 +145,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "worker_rollouts": args.worker_rollouts or None,
         "render_tracking_frames": False if args.pose_only_tracking_frames else None,
     }
-    return replace(
-        config,
-        ppo=replace(config.ppo, **{k: v for k, v in ppo.items() if v is not None}),
-        **{k: v for k, v in run.items() if v is not None},
-    )
+    return load_config(TrainConfig, args.config, {"ppo": ppo, **run})
 
 
 def main(argv: list[str] | None = None, find_model: ModelFinder = existing_file) -> int:

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import argparse
 import logging
-from dataclasses import replace
 from pathlib import Path
 
 from branch_gym.cli_options import add_scan_options, scan_changes
-from branch_gym.config_utils import load_config
+from branch_gym.config_utils import load_config, with_overrides
 from branch_gym.env.versions import ENV_IDS
 from branch_gym.evaluation.ray_backend import add_backend_arguments
 from branch_gym.privileged import HOME_SPEC
@@ -105,8 +104,7 @@ def config_from_args(args: argparse.Namespace) -> ImitationConfig:
         ValueError: a bad recipe or value (named).
     """
     config = load_config(ImitationConfig, args.config)
-    train = config.train
-    tracker = args.tracker or train.tracker
+    tracker = args.tracker or config.train.tracker
     train_changes = {
         "env_id": args.env,
         **scan_changes(args),
@@ -116,10 +114,8 @@ def config_from_args(args: argparse.Namespace) -> ImitationConfig:
         # pose-only tracking frames need the oracle tracker
         "render_tracking_frames": True if args.all_tracking_frames or tracker != "oracle" else None,
     }
-    if args.cnn_output_dim is not None:
-        train_changes["ppo"] = replace(train.ppo, cnn_output_dim=args.cnn_output_dim)
-    train = replace(train, **{k: v for k, v in train_changes.items() if v is not None})
     changes = {
+        "train": {**train_changes, "ppo": {"cnn_output_dim": args.cnn_output_dim}},
         "rounds": args.rounds,
         "episodes": args.episodes,
         "epochs": args.epochs,
@@ -137,7 +133,7 @@ def config_from_args(args: argparse.Namespace) -> ImitationConfig:
         "cost_to_go_weight": args.cost_to_go_weight,
         "expert": args.expert,
     }
-    return replace(config, train=train, **{k: v for k, v in changes.items() if v is not None})
+    return with_overrides(config, changes)
 
 
 def main(argv: list[str] | None = None, find_model: ModelFinder = existing_file) -> int:
