@@ -31,47 +31,40 @@ from collections.abc import Callable
 from agents.factory import AGENTS
 from agents.paper import paper_column
 from agents.ppo import resolve_model_path
+from branch_gym import demo as demo_command
+from branch_gym.evaluation import cli as evaluation_cli
+from branch_gym.evaluation import record as record_command
+from branch_gym.training import cli as training_cli
+from branch_gym.training.imitation import cli as imitation_cli
 
 
 def evaluate(argv: list[str] | None = None) -> int:
     """``branch-gym-eval`` / ``eval.py``: evaluate policies (returns the exit status)."""
-    from branch_gym.evaluation import cli
-
-    return cli.main(argv, AGENTS, paper_column)
+    return evaluation_cli.main(argv, AGENTS, paper_column)
 
 
 def evaluation_parser() -> argparse.ArgumentParser:
     """The options of :func:`evaluate`."""
-    from branch_gym.evaluation import cli
-
-    return cli.build_parser(AGENTS)
+    return evaluation_cli.build_parser(AGENTS)
 
 
 def train(argv: list[str] | None = None) -> int:
     """``branch-gym-train`` / ``train.py``: train a PPO policy (returns the exit status)."""
-    from branch_gym.training import cli
-
-    return cli.main(argv, resolve_model_path)
+    return training_cli.main(argv, resolve_model_path)
 
 
 def imitate(argv: list[str] | None = None) -> int:
     """``branch-gym-imitate``: a DAgger run (returns the exit status)."""
-    from branch_gym.training.imitation import cli
-
-    return cli.main(argv, resolve_model_path)
+    return imitation_cli.main(argv, resolve_model_path)
 
 
 def demo(argv: list[str] | None = None) -> int:
     """``branch-gym-demo`` / ``make demo`` (returns the exit status)."""
-    from branch_gym import demo as demo_command
-
     return demo_command.main(argv, AGENTS, paper_column)
 
 
 def record(argv: list[str] | None = None) -> int:
     """Record one simulated scan as a scan folder (returns the exit status)."""
-    from branch_gym.evaluation import record as record_command
-
     return record_command.main(argv, AGENTS)
 
 

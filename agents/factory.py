@@ -83,7 +83,8 @@ def spec_env_kwargs(spec: str) -> dict[str, Any]:
     was trained on: the row of its recorded env id (:mod:`branch_gym.env.versions`).
 
     Raises:
-        FileNotFoundError, agents.ppo.ModelFileError: a ``ppo:`` model that cannot be loaded.
+        FileNotFoundError, branch_gym.training.model_files.ModelFileError: a ``ppo:`` model
+            that cannot be loaded.
     """
     if not spec.startswith(PPO_SPEC_PREFIX):
         return {"action_type": "continuous"}
