@@ -8,7 +8,7 @@ action minus that of action 0, in found branches at the episode's price of scan 
 median, and the shares of states where it gains or loses more than half a branch; then the same
 for the expert's own action where the expert rotates.
 
-    python research/cost_to_go_labels.py runs/aggrevate_orchard   # a run of configs/aggrevate_orchard.json
+    python research/cost_to_go_labels.py runs/aggrevate_orchard     # configs/aggrevate_orchard.json
 """
 
 from __future__ import annotations
