@@ -174,6 +174,7 @@ def _refusal(command: list[str], monkeypatch: pytest.MonkeyPatch, capsys) -> str
     monkeypatch.chdir(ROOT)
     if command[1] == "-m":
         program, args = command[2], command[3:]
+        monkeypatch.delitem(sys.modules, program, raising=False)  # runs fresh, as from a shell
         run = lambda: runpy.run_module(program, run_name="__main__", alter_sys=True)  # noqa: E731
     else:
         program, args = command[1], command[2:]
