@@ -270,7 +270,7 @@ class TreeConfig:
         ``LEADER_SCAN_END_HEIGHT_M`` (1.50 m), from an arm lifted on a platform
         (``BasePlacement.platform()``); ``branch_gym.scan.leader_scan_config`` sets all three.
         Sources (docs/worlds.md, "A longer stretch"): the leader is ~3 m tall (Robinson 2007,
-        Robinson et al. 2011), feathers below 60 cm are removed at planting (Cornell training
+        Robinson et al. 2011), feathers below 60 cm are removed at planting (a training
         plan), so fruiting branches start at 0.6 m; branches are renewed when they pass half
         (OMAFRA) to two thirds (Robinson 2010) of the leader's diameter and trained at or
         below horizontal. Density: 10-15 feathers on the planted nursery tree (Robinson et
