@@ -213,6 +213,24 @@ def test_fast_orchard_is_the_same_scene_with_a_coarser_background_and_no_jpeg() 
     assert (fast.labels == default.labels).mean() > 0.8  # the background's outlines are coarser
 
 
+def test_trellis_reach_cuts_the_wires_mesh_and_keeps_their_geometry() -> None:
+    spans = {}
+    for reach in (None, 1.5):
+        world = World(WorldConfig(orchard=OrchardConfig(trellis_reach_m=reach)))
+        world.reset(2)
+        wires = world.scene.row.wires
+        meshed = [world.scene._within_reach(wire) for wire in wires]  # what _add_trellis meshes
+        spans[reach] = (
+            [float(np.ptp(part.points[:, 0])) for part in meshed],
+            [float(np.ptp(wire.points[:, 0])) for wire in wires],
+        )
+        world.close()
+    (whole, row_whole), (cut, row_cut) = spans[None], spans[1.5]
+    assert min(whole) > 20.0  # the wires run the row's length
+    assert max(cut) <= 2 * (1.5 + 0.5) + 1e-9  # within the reach, plus a 0.5 m step each side
+    assert row_cut == row_whole  # the row's geometry (its ground truth) keeps every wire whole
+
+
 def _bad_value(value: object) -> object:
     if isinstance(value, tuple) and len(value) != 2:
         return ("trees",)

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import pybullet
 
+from branch_gym.config_utils import is_number
 from branch_gym.sim.bullet import Bullet
 from branch_gym.sim.scene.camera import CameraImages, Lighting, render_camera
 from branch_gym.sim.scene.camera_model import CameraConfig, CameraModel
@@ -96,6 +97,8 @@ _STEEL_POST_PROBABILITY = 0.3  # our choice: most orchard posts are treated wood
 # its coefficients are capped so that a lit white surface stays below the 8-bit ceiling.
 _MAX_AMBIENT = 0.85
 _MAX_DIFFUSE = 0.8
+# OrchardConfig.fast's trellis reach: over twice the ~0.65 m a scan pose can see along the row.
+FAST_TRELLIS_REACH_M = 1.5
 
 
 @dataclass(frozen=True)
@@ -111,6 +114,11 @@ class OrchardConfig:
         background_scale: The sky, ground and rows behind are painted at 1/this resolution and
             upsampled (our choice: 2; all of it is 3 m or more away, where a pixel covers 8 mm
             or more, or at infinity; it keeps a frame within twice the clean world's cost).
+        trellis_reach_m: Mesh the posts, wires and clips only this far along the row (x) from
+            the scanned axis, metres; None: the whole row (the default). The row's geometry
+            (``OrchardScene.row``, its ground truth) keeps every part. A scan pose 0.2 m from the
+            axis, turned 50 deg, sees a wire ~0.65 m along the row at most; the rest costs
+            TinyRenderer its triangles (~0.4 ms a frame) and shows only in third-person views.
     """
 
     row: OrchardRowConfig = field(default_factory=OrchardRowConfig)
@@ -119,8 +127,14 @@ class OrchardConfig:
     ground_texture: TextureConfig = ORCHARD_GROUND
     details: DetailConfig = field(default_factory=DetailConfig.orchard)
     background_scale: int = 2
+    trellis_reach_m: float | None = None
 
     def __post_init__(self) -> None:
+        reach = self.trellis_reach_m
+        if reach is not None and not (is_number(reach) and math.isfinite(reach) and reach > 0):
+            raise ValueError(
+                f"OrchardConfig.trellis_reach_m must be None or a positive number, got {reach!r}"
+            )
         if not (isinstance(self.background_scale, int) and self.background_scale in (1, 2, 4)):
             raise ValueError(
                 f"OrchardConfig.background_scale must be 1, 2 or 4, got {self.background_scale!r}"
@@ -142,11 +156,16 @@ class OrchardConfig:
         """The orchard with the speed-ups that change its pixels (world ``"orchard_fast"``).
 
         The sky, ground and rows behind painted at quarter resolution (``background_scale`` 4:
-        80x60 at 320x240, a pixel 3 cm or more at 3 m) and no JPEG round trip (``camera.jpeg``
-        False). Every draw is the default orchard's: a seed gives the same scene in both.
-        Figures: ``docs/results/speed.md``.
+        80x60 at 320x240, a pixel 3 cm or more at 3 m), no JPEG round trip (``camera.jpeg``
+        False) and the trellis meshed within ``FAST_TRELLIS_REACH_M`` of the scanned axis. Every
+        draw is the default orchard's: a seed gives the same scene in both. Figures:
+        ``docs/results/speed.md``.
         """
-        return cls(background_scale=4, camera=replace(CameraConfig.realistic(), jpeg=False))
+        return cls(
+            background_scale=4,
+            camera=replace(CameraConfig.realistic(), jpeg=False),
+            trellis_reach_m=FAST_TRELLIS_REACH_M,
+        )
 
 
 class OrchardScene:
@@ -277,12 +296,15 @@ class OrchardScene:
                 )
                 for post in self.row.posts
             ]
-            mesh = thin_tubes_mesh([(b.points, b.radii) for b in posts], 2, _POST_SIDES)
-            obj = write_obj(mesh, folder / "posts.obj", texture)
-            self._add_static_body(
-                [p.createVisualShape(pybullet.GEOM_MESH, fileName=str(obj))], [POST_LABEL]
-            )
+            posts = [cut for post in posts if (cut := self._within_reach(post)) is not None]
+            if posts:
+                mesh = thin_tubes_mesh([(b.points, b.radii) for b in posts], 2, _POST_SIDES)
+                obj = write_obj(mesh, folder / "posts.obj", texture)
+                self._add_static_body(
+                    [p.createVisualShape(pybullet.GEOM_MESH, fileName=str(obj))], [POST_LABEL]
+                )
         wires = [*self.row.wires, *self.row.clips]
+        wires = [cut for wire in wires if (cut := self._within_reach(wire)) is not None]
         if wires:
             texture = write_png(_flat_texture(_WIRE_RGB), folder / "wire.png")
             mesh = merge_meshes(
@@ -292,6 +314,23 @@ class OrchardScene:
             self._add_static_body(
                 [p.createVisualShape(pybullet.GEOM_MESH, fileName=str(obj))], [WIRE_LABEL]
             )
+
+    def _within_reach(self, part: BranchGT) -> BranchGT | None:
+        """The piece of a trellis part (points ordered along x) to mesh, or None for none of it.
+
+        With ``OrchardConfig.trellis_reach_m`` set, the points within that distance along x of
+        the scanned axis, and the next point on each side so that the cut ends outside the
+        reach; without it (or without the scan's view), the whole part.
+        """
+        reach = self.config.trellis_reach_m
+        if reach is None or self._view is None:
+            return part
+        axis_x = float(np.mean([xy[0] for xy in self._view.axis_xy]))
+        inside = np.flatnonzero(np.abs(part.points[:, 0] - axis_x) <= reach)
+        if len(inside) == 0:
+            return None
+        first, last = max(int(inside[0]) - 1, 0), min(int(inside[-1]) + 1, len(part.points) - 1)
+        return BranchGT(part.points[first : last + 1], part.radii[first : last + 1])
 
     def _add_static_body(self, visuals: list[int], labels: list[int]) -> int:
         if any(v < 0 for v in visuals):
