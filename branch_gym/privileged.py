@@ -31,6 +31,7 @@ import numpy as np
 
 from branch_gym.env.layout import DISCRETE_ANGLES_DEG
 from branch_gym.policy import BaselineAgent
+from branch_gym.scoring import scan_metrics_config
 from branch_gym.sim.validation import require_positive
 from recon.metrics import TruthIndex, evaluate, index_truth
 
@@ -115,10 +116,14 @@ class PrivilegedAgent(BaselineAgent):
         if tree is None:
             return np.zeros(0)
         if self._truth is None or self._truth[0] is not tree:
-            self._truth = (tree, index_truth(tree))
+            # The scan's band; matches in scope up to the height reached, as the bound always
+            # read them (a branch above it counts as pending while in view).
+            rules = scan_metrics_config(session.config, count_unreached_as_missed=False)
+            self._truth = (tree, index_truth(tree, rules))
+        index = self._truth[1]
         metrics = evaluate(
-            session.model, tree, scanned_top_z_m=session.camera_height_m,
-            truth_index=self._truth[1],
+            session.model, tree, index.config, scanned_top_z_m=session.camera_height_m,
+            truth_index=index,
         )  # fmt: skip
         matched = {j for j, _ in metrics.matches}
         half_band_m = config.view_band_fov * session.vertical_fov_m

@@ -187,12 +187,15 @@ class TreeMetrics:
             ``model.secondaries``; :data:`BRANCH_CLASSES`).
         n_unreached: Missed in-scope branches whose base lies above the height the scan reached
             plus the margin (a failed or stopped scan's; 0 when scoring up to the height reached).
+        n_unreached_matched: In-scope branches above that height that were matched all the same
+            (seen from below); the paper's scope leaves them out.
         class_counts: Reconstructed secondaries per class, every class of
             :data:`BRANCH_CLASSES` (derived).
         n_spurious_paper: The paper's spurious count: candidates of no ground-truth side branch,
             whatever they lie on (derived).
         precision_pct: Matched in % of the reconstructions held against precision (module
             docstring); NaN when there are none (derived).
+        missed_paper_pct: Missed % in the paper's scope, up to the height reached (derived).
         pb_residual_mean_m, sb_residual_mean_m: Means of the residuals (derived).
         pb_radius_rmse_m, sb_radius_rmse_m: RMS of the radius errors (derived).
         missed_pct, spurious_pct, duplicate_pct, spurious_paper_pct: Counts in % of ``n_gt``
@@ -217,10 +220,12 @@ class TreeMetrics:
     match_residual_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     reconstructed_classes: list[str] = field(default_factory=list)
     n_unreached: int = 0
+    n_unreached_matched: int = 0
     class_counts: dict[str, int] = field(init=False)
     n_spurious_paper: int = field(init=False)
     precision_pct: float = field(init=False)
     spurious_paper_pct: float = field(init=False)
+    missed_paper_pct: float = field(init=False)
     pb_residual_mean_m: float = field(init=False)
     pb_radius_rmse_m: float = field(init=False)
     sb_residual_mean_m: float = field(init=False)
@@ -242,6 +247,7 @@ class TreeMetrics:
         )
         self.precision_pct = precision_percent([self])
         self.spurious_paper_pct = pooled_percent([self.n_spurious_paper], [self.n_gt])
+        self.missed_paper_pct = missed_paper_percent([self])
         self.pb_residual_mean_m = _mean(self.pb_residuals_m)
         self.pb_radius_rmse_m = _rms(self.pb_radius_errors_m)
         self.sb_residual_mean_m = _mean(self.sb_residuals_m)
@@ -270,6 +276,8 @@ class TreeMetrics:
             "spurious_pct": self.spurious_pct,
             "duplicate_pct": self.duplicate_pct,
             "n_unreached": self.n_unreached,
+            "n_unreached_matched": self.n_unreached_matched,
+            "missed_paper_pct": self.missed_paper_pct,
             "n_spurious_paper": self.n_spurious_paper,
             "spurious_paper_pct": self.spurious_paper_pct,
             "precision_pct": self.precision_pct,
@@ -304,6 +312,7 @@ class TreeMetrics:
             "match_residual_m": [_float_to_json(v) for v in self.match_residual_m.tolist()],
             "reconstructed_classes": list(self.reconstructed_classes),
             "n_unreached": int(self.n_unreached),
+            "n_unreached_matched": int(self.n_unreached_matched),
         }
 
     @classmethod
@@ -336,6 +345,7 @@ class TreeMetrics:
             match_residual_m=_array_from_json(data.get("match_residual_m", [])),
             reconstructed_classes=[str(name) for name in data["reconstructed_classes"]],
             n_unreached=int(data.get("n_unreached", 0)),
+            n_unreached_matched=int(data.get("n_unreached_matched", 0)),
         )
 
 
@@ -518,6 +528,14 @@ def pooled_percent(counts: Iterable[int], totals: Iterable[int]) -> float:
     return PERCENT * count / total if total else float("nan")
 
 
+def missed_paper_percent(trials: Sequence[TreeMetrics]) -> float:
+    """Missed % pooled over trials in the paper's scope (in scope up to the height each scan
+    reached: its unreached branches, missed or matched, left out); NaN without a branch."""
+    missed = sum(t.n_missed - t.n_unreached for t in trials)
+    total = sum(t.n_gt - t.n_unreached - t.n_unreached_matched for t in trials)
+    return PERCENT * missed / total if total else float("nan")
+
+
 def precision_percent(trials: Sequence[TreeMetrics]) -> float:
     """Side-branch precision pooled over trials: 100 sum(matched) / sum(matched + held against
     precision) (module docstring); NaN when no trial reconstructed a scored branch."""
@@ -549,7 +567,7 @@ def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
         name: int(sum(getattr(t, name) for t in trials))
         for name in (
             "n_gt", "n_matched", "n_missed", "n_spurious", "n_duplicates", "n_spurious_paper",
-            "n_unreached",
+            "n_unreached", "n_unreached_matched",
         )
     }  # fmt: skip
     classes = {
@@ -574,6 +592,7 @@ def aggregate(trials: Sequence[TreeMetrics]) -> dict[str, float | int]:
         "spurious_pct": pooled_percent([t.n_spurious for t in trials], n_gt),
         "duplicate_pct": pooled_percent([t.n_duplicates for t in trials], n_gt),
         "spurious_paper_pct": pooled_percent([t.n_spurious_paper for t in trials], n_gt),
+        "missed_paper_pct": missed_paper_percent(trials),
         "precision_pct": precision_percent(trials),
         **classes,
         "sb_completeness_pct": PERCENT * _mean(completeness),
@@ -706,6 +725,7 @@ def _secondary_metrics(
         "n_ignored_reconstructed": classes.count("short") + classes.count("out_of_scope"),
         "reconstructed_classes": classes,
         "n_unreached": int(np.sum(unreached)) - int(np.sum(unreached[matched_gt])),
+        "n_unreached_matched": int(np.sum(unreached[matched_gt])),
     }
 
 

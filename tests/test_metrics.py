@@ -181,9 +181,11 @@ def test_a_scan_that_fails_halfway_misses_the_branches_above_it() -> None:
     metrics = evaluate(_model(truth.primary, truth.secondaries[:1]), truth, scanned_top_z_m=0.45)
     assert (metrics.n_gt, metrics.n_matched, metrics.n_missed, metrics.n_unreached) == (3, 1, 2, 2)
     assert metrics.missed_pct == pytest.approx(200 / 3)
+    assert metrics.missed_paper_pct == 0.0  # the paper scores up to the height reached
     # A branch seen from below its base height is found, not unreached.
     metrics = evaluate(_model(truth.primary, truth.secondaries[:2]), truth, scanned_top_z_m=0.45)
-    assert (metrics.n_missed, metrics.n_unreached) == (1, 1)
+    assert (metrics.n_missed, metrics.n_unreached, metrics.n_unreached_matched) == (1, 1, 1)
+    assert metrics.missed_paper_pct == 0.0
     # A lower planned top (a quick run) bounds the scope.
     metrics = evaluate(_model(truth.primary, []), truth, scanned_top_z_m=0.45, planned_top_z_m=0.55)
     assert (metrics.n_gt, metrics.n_unreached) == (2, 1)

@@ -20,6 +20,13 @@ re-run. OUT then holds summary.json, table.md, trials.csv, missed_vs_scan_time.p
 tree_SEED.png per plotted tree. See branch_gym/evaluation/ for the definitions. ``--record DIR``
 writes each trial run as a scan folder that ``python -m recon.replay`` reads (docs/replay.md).
 
+``--benchmark NAME`` evaluates the policies on a named, versioned benchmark (``orchard-v1``,
+``paper-v1``: :mod:`branch_gym.evaluation.benchmark`) instead: its world, trees, segmenter,
+tracker and scan limits, on ``--split test`` (default) or ``validation``, with its reference
+policies added; OUT then also holds ``benchmark.md`` (the results page: missed %, precision, scan
+time, failures and paired intervals against the paper's controller and the privileged bound)
+and ``benchmark.json``. The scan options and ``--seed`` are refused with it.
+
 ``--backend ray`` runs the trials as Ray tasks (``pip install .[ray]``): on a private local Ray
 instance of --workers CPUs, or on the cluster at --address; the results are the same as the
 default process pool's (docs/integrations/ray.md).
@@ -29,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shlex
 import sys
 import traceback
 from collections.abc import Callable
@@ -37,6 +45,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from branch_gym.cli_options import add_scan_options, scan_config
+from branch_gym.evaluation.benchmark import BENCHMARKS, SPLITS, benchmark, run_benchmark
+from branch_gym.evaluation.benchmark_page import benchmark_results, write_benchmark_page
 from branch_gym.evaluation.config import EvalConfig, TrialError
 from branch_gym.evaluation.pipeline import run_evaluation
 from branch_gym.evaluation.ray_backend import (
@@ -52,6 +62,12 @@ EXIT_USAGE = 2
 EXIT_TRIAL_FAILED = 1
 ERROR_LOG = "error.log"  # under --out: the traceback of a trial that raised
 EXIT_INTERRUPTED = 130
+DEFAULT_TREES = 60
+# What a benchmark fixes: these options are refused beside --benchmark.
+_FIXED_BY_BENCHMARK = (
+    "--seed", "--world", "--tree", "--tracker", "--segmenter", "--speed", "--end-height",
+    "--modeler", "--record", "--plot-trees",
+)  # fmt: skip
 
 
 def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
@@ -69,8 +85,22 @@ def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
         metavar="SPEC",
         help=f"rotation policies (table columns, in this order): {factory.spec_forms}",
     )
-    parser.add_argument("--trees", type=int, default=60, help="trees per policy (default 60)")
-    parser.add_argument("--seed", type=int, default=0, help="first tree seed (default 0)")
+    parser.add_argument(
+        "--trees",
+        type=int,
+        help=f"trees per policy (default {DEFAULT_TREES}; with --benchmark: only the first "
+        "TREES of each stratum's split, a quick look)",
+    )
+    parser.add_argument("--seed", type=int, help="first tree seed (default 0)")
+    parser.add_argument(
+        "--benchmark",
+        choices=sorted(BENCHMARKS),
+        help="evaluate on this benchmark: its world, trees, segmenter, tracker, scan limits and "
+        "seeds (docs/results/benchmark.md)",
+    )
+    parser.add_argument(
+        "--split", choices=SPLITS, default="test", help="the benchmark's split (default test)"
+    )
     add_backend_arguments(parser, 1, "trials run at once: worker processes, or Ray tasks in flight")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     add_scan_options(parser, defaults={"world": "clean", "tree": "paper"})
@@ -110,14 +140,22 @@ def main(
             (``agents.paper.paper_column``).
     """
     parser = build_parser(factory)
+    argv = sys.argv[1:] if argv is None else list(argv)
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    if args.benchmark is not None:
+        fixed = [f for f in _FIXED_BY_BENCHMARK if any(a.split("=")[0] == f for a in argv)]
+        if fixed:
+            parser.error(f"--benchmark fixes the scan and the trees: drop {' '.join(fixed)}")
+        if args.trees is not None and args.trees < 1:
+            parser.error(f"--trees must be >= 1, got {args.trees}")
+        return _run_benchmark(args, argv, factory)
     try:
         scan = scan_config(args)
         config = EvalConfig(
             tuple(args.policies),
-            args.trees,
-            args.seed,
+            DEFAULT_TREES if args.trees is None else args.trees,
+            0 if args.seed is None else args.seed,
             args.workers,
             scan,
             backend=args.backend,
@@ -134,41 +172,15 @@ def main(
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_USAGE
 
-    bar = None
-
-    def on_start(total: int, saved: int) -> None:
-        nonlocal bar
-        bar = tqdm(total=total, initial=saved, unit="trial", desc="trials", smoothing=0.0)
-
-    def on_done(key: tuple[str, int]) -> None:
-        bar.set_postfix_str(f"{key[0]} seed {key[1]}", refresh=False)
-        bar.update(1)
-
+    progress = _Progress()
     try:
         outcome = run_evaluation(
-            config, args.out, args.plot_trees, on_start, on_done, rerun=args.rerun
+            config, args.out, args.plot_trees, progress.start, progress.done, rerun=args.rerun
         )
-    except (ConfigMismatchError, ValueError, ConnectionError) as exc:  # Connection: Ray address
-        print(f"error: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    except TrialError as exc:  # one line naming the trial and the cause; the traceback in a file
-        if bar is not None:
-            bar.close()  # the message goes on a line of its own
-        log = args.out / ERROR_LOG
-        log.parent.mkdir(parents=True, exist_ok=True)
-        log.write_text("".join(traceback.format_exception(exc)))
-        print(f"error: {exc} (traceback in {log})", file=sys.stderr)
-        return EXIT_TRIAL_FAILED
-    except KeyboardInterrupt:
-        print(
-            f"\ninterrupted: finished trials are saved in {args.out / 'trials'}; "
-            "run the same command again to resume",
-            file=sys.stderr,
-        )
-        return EXIT_INTERRUPTED
+    except (ConfigMismatchError, ValueError, ConnectionError, TrialError, KeyboardInterrupt) as exc:
+        return _failed(exc, args.out, progress)
     finally:
-        if bar is not None:
-            bar.close()
+        progress.close()
 
     loaded = len(outcome.records) - len(outcome.computed)
     print(f"\n{len(outcome.computed)} trials run, {loaded} loaded from {args.out / 'trials'}")
@@ -177,3 +189,73 @@ def main(
     print(f"\nFailure reasons: {failure_reasons(outcome.records, config.policies)}")
     print("\nwrote " + ", ".join(str(path) for path in outcome.files))
     return 0
+
+
+def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFactory) -> int:
+    """``--benchmark``: run (or resume) the split, write the results page, print it."""
+    bench = benchmark(args.benchmark)
+    if args.backend == "ray":
+        try:
+            import_ray()
+        except RayUnavailableError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+    progress = _Progress()
+    try:
+        outcome = run_benchmark(
+            bench, args.policies, args.split, args.out, factory, args.workers, args.backend,
+            args.address, args.trees, progress.start, progress.done,
+        )  # fmt: skip
+    except (ConfigMismatchError, ValueError, ConnectionError, TrialError, KeyboardInterrupt) as exc:
+        return _failed(exc, args.out, progress)
+    finally:
+        progress.close()
+    results = benchmark_results(outcome)
+    if args.trees is not None:
+        results["trees_limit"] = args.trees
+    command = "python eval.py " + shlex.join(argv)
+    files = write_benchmark_page(args.out, results, command)
+    print(f"\n{len(outcome.computed)} trials run\n")
+    print(files[1].read_text())
+    print("wrote " + ", ".join(str(path) for path in files))
+    return 0
+
+
+class _Progress:
+    """A progress bar over the trials, one per evaluation (a benchmark: one per stratum)."""
+
+    def __init__(self) -> None:
+        self.bar: tqdm | None = None
+
+    def start(self, total: int, saved: int) -> None:
+        self.close()
+        self.bar = tqdm(total=total, initial=saved, unit="trial", desc="trials", smoothing=0.0)
+
+    def done(self, key: tuple[str, int]) -> None:
+        self.bar.set_postfix_str(f"{key[0]} seed {key[1]}", refresh=False)
+        self.bar.update(1)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
+def _failed(exc: BaseException, out: Path, progress: _Progress) -> int:
+    """Report a failed evaluation in one line; returns the exit status."""
+    progress.close()  # the message goes on a line of its own
+    if isinstance(exc, KeyboardInterrupt):
+        print(
+            f"\ninterrupted: finished trials are saved under {out}; run the same command again "
+            "to resume",
+            file=sys.stderr,
+        )
+        return EXIT_INTERRUPTED
+    if isinstance(exc, TrialError):  # one line naming the trial and the cause; the traceback
+        log = out / ERROR_LOG
+        log.parent.mkdir(parents=True, exist_ok=True)
+        log.write_text("".join(traceback.format_exception(exc)))
+        print(f"error: {exc} (traceback in {log})", file=sys.stderr)
+        return EXIT_TRIAL_FAILED
+    print(f"error: {exc}", file=sys.stderr)  # a bad folder, value or Ray address
+    return EXIT_USAGE

@@ -144,7 +144,14 @@ def plot_tree(records: Sequence[TrialRecord], path: Path) -> None:
     if not records:
         raise ValueError("plot_tree needs at least one trial")
     top_m = max(r.metrics.scanned_top_z_m for r in records)
-    z_range = (MetricsConfig().band_min_z_m - BELOW_SCAN_M, top_m + ABOVE_SCAN_M)
+    # From the lowest reconstructed primary point (where the scans began), else the band's foot.
+    lowest = [
+        float(np.min(r.model.primary.points[:, 2]))
+        for r in records
+        if r.model.primary is not None and len(r.model.primary.points)
+    ]
+    bottom_m = min(lowest) if lowest else MetricsConfig().band_min_z_m
+    z_range = (bottom_m - BELOW_SCAN_M, top_m + ABOVE_SCAN_M)
     window = (np.array([-np.inf, -np.inf, z_range[0]]), np.array([np.inf, np.inf, z_range[1]]))
     figure = Figure(figsize=(3.2 * len(records), 6.0))
     FigureCanvasAgg(figure)

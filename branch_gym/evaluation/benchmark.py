@@ -1,0 +1,314 @@
+"""Named, versioned benchmarks: what a policy is compared on, as data.
+
+A :class:`Benchmark` fixes everything that decides its figures: the world, the tree
+architectures and how many trees of each (its :class:`Stratum` rows), the segmenter and tracker,
+the scan's limits, the test and validation splits of tree seeds, the scoring rules
+(:class:`recon.metrics.MetricsConfig`) and the price of scan time. ``eval.py --benchmark NAME``
+(:func:`run_benchmark`) evaluates policies on one of its splits, resumes, runs on the process pool
+or a Ray cluster, and writes the results page (:mod:`branch_gym.evaluation.benchmark_page`).
+
+A definition never changes under its name: :func:`Benchmark.digest` hashes it (its scan
+configurations as resolved, so a changed default of the scan changes it too), and
+:data:`VERSION_HISTORY` records the digest of every published version; ``tests/test_benchmark.py``
+fails when a definition and its row disagree. A change that moves any figure is a new version
+(``orchard-v2``), with a line in the Version History saying what changed.
+
+Seeds: a stratum's test and validation seeds lie at and above :data:`HELD_OUT_SEED_START`;
+training (:func:`training_seeds`) draws below it, so no training tree is ever scored.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from branch_gym.env.config import scan_with_tree
+from branch_gym.evaluation.config import EvalConfig, TrialKey
+from branch_gym.evaluation.pipeline import EvalOutcome, run_evaluation
+from branch_gym.evaluation.trials import TrialRecord, config_to_dict
+from branch_gym.policy import PolicyFactory
+from branch_gym.scan import ScanConfig
+from branch_gym.scoring import scan_metrics_config
+from branch_gym.sim.world import WorldConfig
+from recon.metrics import MetricsConfig
+
+SPLITS = ("test", "validation")
+# Tree seeds from here up are held out (test and validation splits); training draws below it.
+HELD_OUT_SEED_START = 100_000
+
+
+@dataclass(frozen=True)
+class Stratum:
+    """One tree architecture of a benchmark and its seeds.
+
+    Attributes:
+        name: Short name (a folder of the results).
+        tree: Tree preset (:data:`branch_gym.env.config.TREE_PRESETS`); a stretch preset also
+            sets the scan's heights and the robot's base.
+        test_seeds: (first seed, number of trees) of the test split.
+        validation_seeds: (first seed, number of trees) of the validation split.
+    """
+
+    name: str
+    tree: str
+    test_seeds: tuple[int, int]
+    validation_seeds: tuple[int, int]
+
+    def seeds(self, split: str) -> tuple[int, int]:
+        """(first seed, number of trees) of ``split``."""
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        return self.test_seeds if split == "test" else self.validation_seeds
+
+
+@dataclass(frozen=True)
+class Benchmark:
+    """A named, versioned benchmark (module docstring).
+
+    Attributes:
+        name: ``NAME-vN``.
+        description: One line: what it measures.
+        world: World preset ("clean" or "orchard").
+        strata: The tree architectures and their seeds.
+        segmenter: Segmenter spec of every scan (``ScanConfig.segmenter``).
+        tracker: Point tracker of every scan.
+        scan_changes: Other ``ScanConfig`` fields (speed, time limit ...) as (name, value) pairs.
+        metrics_changes: ``MetricsConfig`` fields over the authors' rules on the scan's band, as
+            (name, value) pairs (e.g. the paper's scope for its replication table).
+        branch_value_s: The price of scan time: seconds of scan a found side branch is worth
+            (the cost column: missed branches + scan time / this).
+        reference_policy: The paper's controller, every other policy's paired comparison.
+        bound_policy: The privileged bound (reads the ground truth).
+        baseline_policy: No rotation: the headroom is its gap to the bound.
+    """
+
+    name: str
+    description: str
+    world: str
+    strata: tuple[Stratum, ...]
+    segmenter: str
+    tracker: str = "lk"
+    scan_changes: tuple[tuple[str, object], ...] = ()
+    metrics_changes: tuple[tuple[str, object], ...] = ()
+    branch_value_s: float = 100.0
+    reference_policy: str = "periodic:22.5:1.5"
+    bound_policy: str = "privileged"
+    baseline_policy: str = "none"
+
+    def __post_init__(self) -> None:
+        if not self.strata:
+            raise ValueError(f"benchmark {self.name!r} needs at least one stratum")
+        names = [s.name for s in self.strata]
+        if len(set(names)) != len(names):
+            raise ValueError(f"benchmark {self.name!r}: stratum names repeat: {names}")
+        spans = sorted(
+            (first, first + count, f"{s.name} {split}")
+            for s in self.strata
+            for split in SPLITS
+            for first, count in [s.seeds(split)]
+        )
+        for (_, end, a), (start, _, b) in itertools.pairwise(spans):
+            if start < end:
+                raise ValueError(f"benchmark {self.name!r}: the seeds of {a} and {b} overlap")
+        if spans[0][0] < HELD_OUT_SEED_START:
+            raise ValueError(
+                f"benchmark {self.name!r}: held-out seeds start at {HELD_OUT_SEED_START}"
+            )
+        if not self.branch_value_s > 0:
+            raise ValueError(f"branch_value_s must be positive, got {self.branch_value_s}")
+
+    def scan_config(self, stratum: Stratum) -> ScanConfig:
+        """The scan every trial of ``stratum`` runs."""
+        scan = ScanConfig(
+            world=WorldConfig.preset(self.world), segmenter=self.segmenter, tracker=self.tracker
+        )
+        return scan_with_tree(scan, stratum.tree).replace(**dict(self.scan_changes))
+
+    def metrics_config(self, stratum: Stratum) -> MetricsConfig:
+        """The scoring rules of ``stratum``'s trials."""
+        return scan_metrics_config(self.scan_config(stratum), **dict(self.metrics_changes))
+
+    def policies_with_references(self, policies: Sequence[str]) -> tuple[str, ...]:
+        """``policies`` with the baseline, reference and bound added where missing (first)."""
+        references = [self.baseline_policy, self.reference_policy, self.bound_policy]
+        return (*[p for p in references if p not in policies], *policies)
+
+    def to_json_dict(self) -> dict:
+        """The definition as JSON-able data, every scan configuration resolved."""
+        data = asdict(self)
+        data["strata"] = [
+            {
+                **asdict(stratum),
+                "scan": config_to_dict(self.scan_config(stratum)),
+                "metrics": config_to_dict(self.metrics_config(stratum)),
+            }
+            for stratum in self.strata
+        ]
+        return json.loads(json.dumps(data, sort_keys=True, default=str))
+
+    def digest(self) -> str:
+        """Short hash of :meth:`to_json_dict` (literal values only: the same on any machine)."""
+        text = json.dumps(self.to_json_dict(), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class VersionRow:
+    """One published benchmark version: its digest and what it changed."""
+
+    name: str
+    digest: str
+    change: str
+
+
+# paper-v1: the paper's clean world and tree, 60 trees as Table I, scored by the paper's rules (in
+# scope up to the height reached), from the renderer's labels.
+PAPER_V1 = Benchmark(
+    name="paper-v1",
+    description="the paper's simulated world and Table I, from the renderer's labels",
+    world="clean",
+    strata=(Stratum("paper", "paper", test_seeds=(100_000, 60), validation_seeds=(100_100, 30)),),
+    segmenter="gt",
+    metrics_changes=(("count_unreached_as_missed", False),),
+)
+# orchard-v1: the orchard world from pixels (the shipped segmenter, Lucas-Kanade), scanning the
+# 0.8 m fruiting stretch of a tall-spindle leader (~11 scored laterals a tree, docs/worlds.md);
+# the test split sized by the power computation on its validation split (docs/results/benchmark.md).
+ORCHARD_V1 = Benchmark(
+    name="orchard-v1",
+    description="the orchard world from pixels: a tall-spindle leader's 0.8 m fruiting stretch",
+    world="orchard",
+    strata=(
+        Stratum(
+            "tall_spindle_leader",
+            "tall_spindle_leader",
+            test_seeds=(200_000, 150),
+            validation_seeds=(300_000, 60),
+        ),
+    ),
+    segmenter="learned",
+)
+BENCHMARKS: dict[str, Benchmark] = {b.name: b for b in (PAPER_V1, ORCHARD_V1)}
+# Every published version, newest first (a row's digest is its definition's: tests check them).
+VERSION_HISTORY: tuple[VersionRow, ...] = (
+    VersionRow(
+        "orchard-v1",
+        "357d0db5e3d0d74c",
+        "initial: the orchard world from pixels, a tall-spindle leader's fruiting stretch, "
+        "reconstructions classed against the tree's details, neighbours and trellis, unreached "
+        "branches missed",
+    ),
+    VersionRow(
+        "paper-v1",
+        "ff1a7f7f08dd4956",
+        "initial: the paper's world and Table I, from the renderer's labels, the paper's scope",
+    ),
+)
+
+
+def benchmark(name: str) -> Benchmark:
+    """The benchmark called ``name``.
+
+    Raises:
+        ValueError: an unknown name, listing the known ones.
+    """
+    if name not in BENCHMARKS:
+        raise ValueError(f"unknown benchmark {name!r}: expected one of {sorted(BENCHMARKS)}")
+    return BENCHMARKS[name]
+
+
+def training_seeds(count: int, first: int = 0) -> range:
+    """``count`` training tree seeds from ``first``, all below the held-out seeds.
+
+    Raises:
+        ValueError: the range reaches :data:`HELD_OUT_SEED_START`.
+    """
+    if first < 0 or first + count > HELD_OUT_SEED_START:
+        raise ValueError(
+            f"training seeds {first}..{first + count - 1} must lie in [0, {HELD_OUT_SEED_START})"
+        )
+    return range(first, first + count)
+
+
+@dataclass
+class BenchmarkOutcome:
+    """What :func:`run_benchmark` did.
+
+    Attributes:
+        benchmark: The benchmark.
+        split: "test" or "validation".
+        records: Stratum name -> its trials (scored under the benchmark's rules).
+        outcomes: Stratum name -> its evaluation (per-stratum outputs under ``out/NAME``).
+    """
+
+    benchmark: Benchmark
+    split: str
+    records: dict[str, list[TrialRecord]]
+    outcomes: dict[str, EvalOutcome] = field(default_factory=dict)
+
+    @property
+    def computed(self) -> list[tuple[str, TrialKey]]:
+        """(stratum, trial) of every trial run this time."""
+        return [(name, key) for name, o in self.outcomes.items() for key in o.computed]
+
+
+def run_benchmark(
+    bench: Benchmark,
+    policies: Sequence[str],
+    split: str,
+    out: Path,
+    factory: PolicyFactory,
+    workers: int = 1,
+    backend: str = "pool",
+    address: str | None = None,
+    trees: int | None = None,
+    on_start: Callable[[int, int], None] | None = None,
+    on_done: Callable[[TrialKey], None] | None = None,
+) -> BenchmarkOutcome:
+    """Evaluate ``policies`` (with the benchmark's references) on one split, resuming.
+
+    Each stratum is one evaluation under ``out/<stratum>`` (``run_evaluation``: trials saved
+    as they finish, loaded when saved); the trials are then scored under the benchmark's rules
+    (:meth:`TrialRecord.rescored`, no re-run).
+
+    Args:
+        bench: The benchmark.
+        policies: Policy specs (the references are added).
+        split: "test" or "validation".
+        out: Output folder.
+        factory: Reads the specs (``agents.factory.AGENTS``).
+        workers: Trials at once (processes or Ray tasks).
+        backend: "pool" or "ray".
+        address: Ray cluster address (Ray backend).
+        trees: Only the first ``trees`` seeds of each stratum (a quick look; the results page
+            says so), None for the whole split.
+        on_start: Called per stratum with (its trials, those already saved).
+        on_done: Called after each trial run.
+    """
+    policies = bench.policies_with_references(policies)
+    outcome = BenchmarkOutcome(bench, split, {})
+    for stratum in bench.strata:
+        first, count = stratum.seeds(split)
+        if trees is not None:
+            count = min(count, trees)
+        config = EvalConfig(
+            policies,
+            count,
+            first,
+            workers,
+            bench.scan_config(stratum),
+            backend=backend,
+            address=address,
+            policy_factory=factory,
+        )
+        result = run_evaluation(config, out / stratum.name, [], on_start, on_done)
+        metrics = bench.metrics_config(stratum)
+        outcome.outcomes[stratum.name] = result
+        # Trials are scored by the scan's default rules when they run; other rules re-score them.
+        same = metrics == scan_metrics_config(config.scan)
+        outcome.records[stratum.name] = [r if same else r.rescored(metrics) for r in result.records]
+    return outcome

@@ -1,0 +1,212 @@
+"""A benchmark's results: the table, the paired intervals, the headroom and the power, as data
+and as a Markdown page (``OUT/benchmark.md``, ``OUT/benchmark.json``).
+
+Every policy scans the same trees. Per policy: missed % of the in-scope side branches (a failed
+scan misses the branches above where it stopped) with its bootstrap interval over trees,
+precision, spurious % (nothing there) beside the paper's spurious %, mean scan time, failed
+scans, and the cost (missed branches + scan time / the benchmark's price, per tree). Against the
+paper's controller and against the privileged bound: the paired difference of missed % with its
+95 % interval (:func:`branch_gym.evaluation.statistics.paired_comparison`). The headroom is the
+paired difference between no rotation and the bound. The power section gives, per policy, the
+half-width its interval against the paper's controller has and the trees that +-1 point would
+take (:mod:`branch_gym.evaluation.power`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from branch_gym.evaluation.benchmark import BenchmarkOutcome
+from branch_gym.evaluation.power import PairedSample, predicted_half_width, trees_for_half_width
+from branch_gym.evaluation.statistics import BootstrapConfig, bootstrap_ci, paired_comparison
+from branch_gym.evaluation.trials import TrialRecord
+from branch_gym.files import write_json_atomic
+from recon.metrics import BRANCH_CLASSES, aggregate
+
+PAGE = "benchmark.md"
+RESULTS = "benchmark.json"
+TARGET_HALF_WIDTH_PCT = 1.0  # issue 60: the interval of a policy near the paper's, +-1 point
+
+
+def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
+    """The results as JSON-able data (module docstring).
+
+    Args:
+        outcome: A finished :func:`branch_gym.evaluation.benchmark.run_benchmark`.
+        seed: Seeds the bootstrap resampling (the same command gives the same intervals).
+    """
+    bench = outcome.benchmark
+    by_policy = _pooled(outcome)
+    policies = list(by_policy)
+    reference = by_policy[bench.reference_policy]
+    bound = by_policy[bench.bound_policy]
+    rows = {}
+    for policy in policies:
+        records = by_policy[policy]
+        stats = aggregate([r.metrics for r in records])
+        ci = bootstrap_ci(records, np.random.default_rng(seed))
+        time_s = np.array([r.scan_time_s for r in records])
+        missed = np.array([r.metrics.n_missed for r in records])
+        row = {
+            "trees": len(records),
+            "n_gt": stats["n_gt"],
+            "n_missed": stats["n_missed"],
+            "missed_pct": stats["missed_pct"],
+            "missed_pct_ci": ci["missed_pct_ci"],
+            "precision_pct": stats["precision_pct"],
+            "spurious_pct": stats["spurious_pct"],
+            "spurious_paper_pct": stats["spurious_paper_pct"],
+            "duplicate_pct": stats["duplicate_pct"],
+            "n_unreached": stats["n_unreached"],
+            "scan_time_s": float(time_s.mean()),
+            "scan_time_s_ci": ci["scan_time_s_ci"],
+            "failures": sum(r.failure is not None for r in records),
+            "cost_branches_per_tree": float(np.mean(missed + time_s / bench.branch_value_s)),
+            "classes": {name: stats[f"n_class_{name}"] for name in BRANCH_CLASSES},
+        }
+        for name, other in (("reference", reference), ("bound", bound)):
+            if policy == (bench.reference_policy if name == "reference" else bench.bound_policy):
+                continue
+            rng = np.random.default_rng(seed)
+            row[f"vs_{name}"] = paired_comparison(records, other, rng)
+        if policy != bench.reference_policy:
+            sample = _paired_sample(records, reference)
+            row["power"] = {
+                "half_width_pct": predicted_half_width(sample, len(records)),
+                "trees_for_1_point": trees_for_half_width(sample, TARGET_HALF_WIDTH_PCT),
+            }
+        rows[policy] = row
+    headroom = paired_comparison(
+        by_policy[bench.baseline_policy], bound, np.random.default_rng(seed)
+    )
+    return {
+        "benchmark": bench.name,
+        "digest": bench.digest(),
+        "split": outcome.split,
+        "strata": {name: len(records) for name, records in _trees_by_stratum(outcome).items()},
+        "branch_value_s": bench.branch_value_s,
+        "reference_policy": bench.reference_policy,
+        "bound_policy": bench.bound_policy,
+        "baseline_policy": bench.baseline_policy,
+        "policies": rows,
+        "headroom": headroom,
+        "bootstrap": {"resamples": BootstrapConfig().resamples, "seed": seed},
+    }
+
+
+def write_benchmark_page(out: Path, results: dict, command: str) -> list[Path]:
+    """Write ``OUT/benchmark.json`` and ``OUT/benchmark.md``; returns their paths."""
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / RESULTS, results)
+    (out / PAGE).write_text(format_page(results, command))
+    return [out / RESULTS, out / PAGE]
+
+
+def format_page(results: dict, command: str) -> str:
+    """The results page: the command, the table, the headroom and the power."""
+    rows = results["policies"]
+    trees = sum(results["strata"].values())
+    n_gt = next(iter(rows.values()))["n_gt"]
+    reference, bound = results["reference_policy"], results["bound_policy"]
+    lines = [
+        f"# `{results['benchmark']}`, {results['split']} split",
+        "",
+        "```bash",
+        command,
+        "```",
+        "",
+        f"Definition digest `{results['digest']}`; {trees} trees "
+        f"({', '.join(f'{k} {v}' for k, v in results['strata'].items())}), {n_gt} side branches "
+        f"in scope. Cost = missed branches + scan time / {results['branch_value_s']:g} s, per "
+        "tree. Intervals: 95 %, bootstrap over trees; differences paired on the same trees "
+        f"(policy minus `{reference}`, the paper's controller, and minus `{bound}`).",
+        "",
+        "| policy | missed % [95 %] | vs paper's [95 %] | vs bound [95 %] | precision % | "
+        "spurious % (paper's) | scan time s | failures | cost |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for policy, row in rows.items():
+        lines.append(
+            f"| `{policy}` | {_pct(row['missed_pct'])} {_ci(row['missed_pct_ci'])} | "
+            f"{_diff(row.get('vs_reference'))} | {_diff(row.get('vs_bound'))} | "
+            f"{_pct(row['precision_pct'])} | {_pct(row['spurious_pct'])} "
+            f"({_pct(row['spurious_paper_pct'])}) | {row['scan_time_s']:.1f} | "
+            f"{row['failures']} | {row['cost_branches_per_tree']:.2f} |"
+        )
+    headroom = results["headroom"]
+    lines += [
+        "",
+        f"Headroom (`{results['baseline_policy']}` minus `{bound}`): "
+        f"{_diff(headroom)} points of missed %.",
+        "",
+        "Power: the half-width of each policy's interval against the paper's controller on these "
+        "trees, and the trees that +-1 point would take (delta method on the paired per-tree "
+        "differences, `branch_gym/evaluation/power.py`):",
+        "",
+        "| policy | half-width (points) | trees for +-1 point |",
+        "|---|---|---|",
+    ]
+    for policy, row in rows.items():
+        if "power" in row:
+            power = row["power"]
+            lines.append(
+                f"| `{policy}` | {power['half_width_pct']:.2f} | {power['trees_for_1_point']} |"
+            )
+    lines += [
+        "",
+        "Classes of the reconstructed side branches, all policies: "
+        + ", ".join(
+            f"{name} {sum(row['classes'][name] for row in rows.values())}"
+            for name in next(iter(rows.values()))["classes"]
+        )
+        + ".",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _pooled(outcome: BenchmarkOutcome) -> dict[str, list[TrialRecord]]:
+    """Policy -> its trials over every stratum, in stratum then seed order."""
+    pooled: dict[str, list[TrialRecord]] = {}
+    for records in outcome.records.values():
+        for record in records:
+            pooled.setdefault(record.policy, []).append(record)
+    return pooled
+
+
+def _trees_by_stratum(outcome: BenchmarkOutcome) -> dict[str, set[int]]:
+    return {name: {r.seed for r in records} for name, records in outcome.records.items()}
+
+
+def _paired_sample(a: Sequence[TrialRecord], b: Sequence[TrialRecord]) -> PairedSample:
+    a_sorted, b_sorted = sorted(a, key=lambda r: r.seed), sorted(b, key=lambda r: r.seed)
+    if [r.seed for r in a_sorted] != [r.seed for r in b_sorted]:
+        raise ValueError("a paired sample needs both policies on the same tree seeds")
+    return PairedSample(
+        np.array([r.metrics.n_missed for r in a_sorted], float),
+        np.array([r.metrics.n_missed for r in b_sorted], float),
+        np.array([r.metrics.n_gt for r in a_sorted], float),
+    )
+
+
+def _pct(value: float | None) -> str:
+    return "-" if value is None or not np.isfinite(value) else f"{value:.1f}"
+
+
+def _ci(interval: Sequence[float] | None) -> str:
+    return "" if interval is None else f"[{interval[0]:.1f}, {interval[1]:.1f}]"
+
+
+def _diff(comparison: dict | None) -> str:
+    if comparison is None or comparison["missed_pct_diff"] is None:
+        return "-"
+    return f"{comparison['missed_pct_diff']:+.1f} {_ci(comparison['missed_pct_diff_ci'])}"
+
+
+def load_results(out: Path) -> dict:
+    """``OUT/benchmark.json`` as written by :func:`write_benchmark_page`."""
+    return json.loads((out / RESULTS).read_text())
