@@ -175,13 +175,14 @@ PAPER_V1 = Benchmark(
     segmenter="gt",
     metrics_changes=(("count_unreached_as_missed", False),),
 )
-# orchard-v1: the orchard world from pixels (the shipped segmenter, Lucas-Kanade), scanning the
+# orchard-v1: the orchard world from pixels (the shipped segmenter, Lucas-Kanade; the world's
+# cheaper-pixel preset, its sky at quarter resolution and no JPEG), scanning the
 # 0.8 m fruiting stretch of a tall-spindle leader (~11 scored laterals a tree, docs/worlds.md);
 # the test split sized by the power computation on its validation split (docs/results/benchmark.md).
 ORCHARD_V1 = Benchmark(
     name="orchard-v1",
     description="the orchard world from pixels: a tall-spindle leader's 0.8 m fruiting stretch",
-    world="orchard",
+    world="orchard_fast",  # the orchard's draws, cheaper pixels (docs/results/speed.md)
     strata=(
         Stratum(
             "tall_spindle_leader",

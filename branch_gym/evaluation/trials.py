@@ -277,6 +277,11 @@ HASH_NEUTRAL_DEFAULTS = {
     "world.orchard": None,
     "world.tree.architecture": "paper",
     "world.tree.primary_base_height_m": 0.0,
+    # Issue 60's leader stretch and the orchard's cheaper pixels: off, today's scans.
+    "world.tree.alley_side_reach_m": None,
+    "world.tree.alley_side_half_angle_deg": 70.0,
+    "world.orchard.trellis_reach_m": None,
+    "world.orchard.camera.jpeg": True,
 }
 
 
