@@ -198,7 +198,7 @@ BENCHMARKS: dict[str, Benchmark] = {b.name: b for b in (PAPER_V1, ORCHARD_V1)}
 VERSION_HISTORY: tuple[VersionRow, ...] = (
     VersionRow(
         "orchard-v1",
-        "357d0db5e3d0d74c",
+        "b136afa1688bbbd8",
         "initial: the orchard world from pixels, a tall-spindle leader's fruiting stretch, "
         "reconstructions classed against the tree's details, neighbours and trellis, unreached "
         "branches missed",
