@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 # Threads: `import branch_gym` pins one BLAS thread per process (branch_gym/__init__.py).
 
-.PHONY: setup demo test test-fast bench lint format clean
+.PHONY: setup demo test test-slow bench lint format clean
 
 setup: $(STAMP)
 
@@ -20,11 +20,13 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(PY) -m agents.commands demo
 
+# make test: everything but the slow integration tests (under 12 minutes on 2 cores);
+# make test-slow: those; CI runs both (.ci/run).
 test: $(STAMP)
-	$(PY) -m pytest -n 2 -q
-
-test-fast: $(STAMP)
 	$(PY) -m pytest -n 2 -q -m "not slow"
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -n 2 -q -m slow
 
 bench: $(STAMP)
 	$(PY) -m bench.run
