@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 from skimage.morphology import medial_axis, skeletonize
 
-from recon.curve2d.skeleton_bridge import OcclusionRule, find_bridges
+from recon.curve2d.skeleton_bridge import END_ARTEFACT_RADII, OcclusionRule, find_bridges
 from recon.curve2d.skeleton_graph import SkeletonGraph
 from recon.curve2d.skeleton_trace import build_graph
 from recon.frame import as_binary_mask
@@ -44,8 +44,6 @@ __all__ = ["SkeletonConfig", "extract_skeleton", "preprocess_mask"]
 
 # 5x5 chamfer distance transform: within ~2% of Euclidean and 4x faster than the exact one.
 _DT_MASK = cv2.DIST_MASK_5
-# Thinning bends a skeleton within ~1.5 radii of a cut end (reference: corner spurs ~sqrt(2) r).
-_END_ARTEFACT_RADII = 1.5
 _EXTENSION_MARGIN_PX = 2
 
 
@@ -95,6 +93,12 @@ class SkeletonConfig:
         occlusion_min_elongation: Shortest piece an occlusion bridge leaves from, in its radii
             (ours: a trunk between two wires may be only a few radii long; a blob is shorter
             than its diameter).
+        occlusion_wide_ends: An occlusion bridge may also leave a wide piece's cut end past
+            the thinning's hook into a corner of the cut, or where the piece's skeleton runs on
+            into a thin branch flush with the occluder (:class:`OcclusionRule`). Ours: a tall
+            spindle's leader (radius ~27 px at 0.2 m) cut at a slant by a neighbour's branch
+            crossing in front of it was bridged by neither rule and the scan lost (orchard,
+            ``--tree tall_spindle_leader``, seeds 7000 and 7004). False: the tip only.
     """
 
     border_px: int = 10
@@ -112,6 +116,7 @@ class SkeletonConfig:
     occlusion_max_angle_deg: float = 15.0
     occlusion_width_ratio: float = 1.5
     occlusion_min_elongation: float = 2.0
+    occlusion_wide_ends: bool = True
 
     def __post_init__(self) -> None:
         require_non_negative(self, "border_px", "max_hole_area_px", finite=False)
@@ -213,6 +218,7 @@ def extract_skeleton(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()
             config.occlusion_max_angle_deg,
             config.occlusion_width_ratio,
             config.occlusion_min_elongation,
+            config.occlusion_wide_ends,
         ),
     )
     if not bridges:
@@ -262,7 +268,7 @@ def _extension_needed_px(inner: np.ndarray) -> int:
         edges = np.flatnonzero(np.diff(np.concatenate([[False], line, [False]])))
         if len(edges):
             widest = max(widest, int((edges[1::2] - edges[::2]).max()))
-    return math.ceil(_END_ARTEFACT_RADII * widest / 2.0) + _EXTENSION_MARGIN_PX if widest else 0
+    return math.ceil(END_ARTEFACT_RADII * widest / 2.0) + _EXTENSION_MARGIN_PX if widest else 0
 
 
 def _empty_graph() -> SkeletonGraph:

@@ -40,6 +40,7 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -55,6 +56,13 @@ _RAY_MARGIN_PX = 2.0  # rounding slack at both silhouette edges
 # An occlusion bridge's direction is the chord over up to this many tangent lengths of the
 # terminal edge (ours: past a cut end's corner, still the branch's own direction).
 _OCCLUSION_CHORD_TANGENTS = 4.0
+# Thinning bends a skeleton within ~1.5 radii of a cut end (its hook into a corner of the cut;
+# corner spurs are ~sqrt(2) radii long). Also ``recon/curve2d/skeleton.py``'s border extension.
+END_ARTEFACT_RADII = 1.5
+# A wide piece's skeleton narrows into a thin branch where its radius falls below 1/2 of the
+# wide end's (ours: twice the occlusion rule's default width ratio of one branch, 1.5, would
+# be 3; a side branch is 0.3-0.5x its trunk's radius, reference.md and docs/worlds.md).
+_WIDTH_DROP = 2.0
 # A bridged component's skeleton is at least this many radii long (ours: two diameters; a blob's
 # skeleton is shorter than its diameter).
 _MIN_ELONGATION = 4.0
@@ -70,12 +78,41 @@ class OcclusionRule:
             that axis and the far piece's centre seen from the near piece.
         width_ratio: Largest ratio between the two pieces' widths (either way).
         min_elongation: Shortest skeleton of the endpoint's piece, in its radii.
+        wide_ends: Also measure a cut end past the thinning's end hook, and take the point
+            where a wide piece's skeleton narrows into a thin branch as a cut end (see
+            :func:`_occlusion_target`); False: only the skeleton's tip, as before.
     """
 
     gap_radii: float = 0.0
     max_angle_deg: float = 15.0
     width_ratio: float = 1.5
     min_elongation: float = 2.0
+    wide_ends: bool = True
+
+
+class _Targets(NamedTuple):
+    """What an occlusion bridge may reach (:func:`find_bridges`' tables).
+
+    Attributes:
+        labels: (H, W) int mask component of every pixel (0: background).
+        pixels: (P, 2) int every skeleton pixel (u, v).
+        pixel_label: (P,) the mask component of each.
+        other_component: (P,) True for the pixels of other skeleton components than the
+            endpoint's.
+        targetable: () -> (P,) True for the pixels outside the skeleton's end zones.
+        angles: (R,) ray angles (rad) about a piece's axis.
+        max_gap_px: The small-gap rule's largest gap (an occlusion bridge's is wider).
+        tangent_px: Arc length over which a tangent is measured.
+    """
+
+    labels: np.ndarray
+    pixels: np.ndarray
+    pixel_label: np.ndarray
+    other_component: np.ndarray
+    targetable: Callable[[], np.ndarray]
+    angles: np.ndarray
+    max_gap_px: float
+    tangent_px: float
 
 
 @dataclass(frozen=True)
@@ -181,18 +218,52 @@ def find_bridges(
                     labels, end, outward, angles, own_label, radius, max_gap_px,
                     pixels, pixel_label, owner != own, targetable,
                 )  # fmt: skip
+            start = _pixel_at_arc(path, radius)
             if found is None and occlusion.gap_radii > 0:
-                found = _occlusion_target(
-                    labels, path, edge.length_px, occlusion_angles, own_label, lengths[own],
-                    max_gap_px, tangent_px, pixels, pixel_label, owner != own, targetable,
+                found, start = _occlusion_target(
+                    path, edge.length_px, path_radii, own_label, lengths[own],
+                    _Targets(labels, pixels, pixel_label, owner != own, targetable,
+                             occlusion_angles, max_gap_px, tangent_px),
                     occlusion,
                 )  # fmt: skip
             if found is None:
                 continue
             gap, target = found
-            start = _pixel_at_arc(path, radius)
             bridge = Bridge(start.astype(int), pixels[target].astype(int), radius, gap)
             proposals.append((gap, int(own), int(owner[target]), bridge))
+        if occlusion.gap_radii <= 0 or not occlusion.wide_ends:
+            continue
+        for node, path, path_radii in (
+            (edge.start, edge.pixels_uv, edge.radii_px),
+            (edge.end, edge.pixels_uv[::-1], edge.radii_px[::-1]),
+        ):
+            # A wide piece whose skeleton runs on into a thin branch at its cut end (a side
+            # branch flush with the occluder's edge): its end is where the width drops.
+            if graph.node_kind[node] != "endpoint" or len(graph.incident_edges(node)) != 1:
+                continue
+            drop = _width_drop(path_radii, tangent_px)
+            if drop is None:
+                continue
+            wide, wide_radii = path[drop::-1], path_radii[drop::-1]
+            end, own = wide[0], component[node]
+            if end[0] <= u_min or end[0] >= u_max or end[1] <= v_min or end[1] >= v_max:
+                continue
+            wide_length = float(np.linalg.norm(np.diff(wide.astype(float), axis=0), axis=1).sum())
+            radius = float(np.median(wide_radii))
+            skip_px = END_ARTEFACT_RADII * radius  # past the bend into the thin branch
+            if wide_length - skip_px < tangent_px:
+                continue
+            found = _occlusion_hit(
+                wide, wide_length, skip_px, labels[end[1], end[0]], lengths[own],
+                _Targets(labels, pixels, pixel_label, owner != own, targetable,
+                         occlusion_angles, max_gap_px, tangent_px),
+                occlusion,
+            )  # fmt: skip
+            if found is not None:
+                gap, target = found
+                start = _pixel_at_arc(wide, skip_px)
+                bridge = Bridge(start.astype(int), pixels[target].astype(int), radius, gap)
+                proposals.append((gap, int(own), int(owner[target]), bridge))
     proposals.sort(key=lambda p: (p[0], p[1], p[2]))
     parent = {int(c): int(c) for c in np.unique(component)}
 
@@ -253,44 +324,88 @@ def _nearest_target(
 
 
 def _occlusion_target(
-    labels: np.ndarray,
     path: np.ndarray,
     edge_length_px: float,
-    angles: np.ndarray,
+    edge_radii_px: np.ndarray,
     own_label: int,
     own_length_px: float,
-    max_gap_px: float,
-    tangent_px: float,
-    pixels: np.ndarray,
-    pixel_label: np.ndarray,
-    other_component: np.ndarray,
-    targetable: Callable[[], np.ndarray],
+    targets: _Targets,
     rule: OcclusionRule,
-) -> tuple[float, int] | None:
-    """:func:`_bridge_target` for an occlusion bridge (:class:`OcclusionRule`), or None.
+) -> tuple[tuple[float, int] | None, np.ndarray]:
+    """:func:`_bridge_target` for an occlusion bridge (:class:`OcclusionRule`), and the
+    skeleton pixel the bridge leaves from.
 
     Args:
         path: (P, 2) the terminal edge's skeleton pixels, from the endpoint.
         edge_length_px: Its polyline length.
+        edge_radii_px: (P,) its pixels' radii.
+
+    Returns:
+        ((gap, index of the skeleton pixel bridged to) or None, (2,) start pixel (u, v)).
 
     Directions and widths are taken over the branch's end, not at the skeleton's tip: a wide
     branch's skeleton bends into a corner of a cut end, so the outward direction is the chord
     over the terminal edge (up to ``_OCCLUSION_CHORD_TANGENTS`` tangent lengths) and widths are
-    measured across the mask, ``tangent_px`` back from the tip.
+    measured across the mask, ``tangent_px`` back from the tip. Where that finds nothing, the
+    end is measured again past the thinning's end hook (:data:`END_ARTEFACT_RADII` radii of
+    the edge's far half): a wide trunk cut at a slant by an occluder (a crossing branch in front
+    of it) has a hook as long as its radius that turns the chord 30 deg or more off the trunk
+    (measured, orchard seed 7000: a 27 px radius leader cut by a 12 px band, its two ends'
+    chords 33 deg off vertical, and the scan lost). That try takes its direction, width and
+    rays from the trunk's axis behind the hook, bridges from the skeleton there, and to the far
+    piece's skeleton past its own hook, so that the bridge runs along the axis across the gap.
     """
-    end = path[0]
-    chord = min(edge_length_px, _OCCLUSION_CHORD_TANGENTS * tangent_px)
-    outward = _outward_tangent(path.astype(float), 0.0, chord)
+    found = _occlusion_hit(path, edge_length_px, 0.0, own_label, own_length_px, targets, rule)
+    tangent_px = targets.tangent_px
+    start = _pixel_at_arc(path, float(np.median(edge_radii_px[: max(2, int(tangent_px))])))
+    if found is not None or not rule.wide_ends:
+        return found, start
+    # The branch's radius over the half of the edge away from the tip (the hook narrows).
+    skip_px = END_ARTEFACT_RADII * float(np.median(edge_radii_px[len(edge_radii_px) // 2 :]))
+    if edge_length_px - skip_px < tangent_px:
+        return None, start  # no straight run behind the hook
+    found = _occlusion_hit(path, edge_length_px, skip_px, own_label, own_length_px, targets, rule)
+    return found, _pixel_at_arc(path, skip_px)
+
+
+def _occlusion_hit(
+    path: np.ndarray,
+    edge_length_px: float,
+    skip_px: float,
+    own_label: int,
+    own_length_px: float,
+    targets: _Targets,
+    rule: OcclusionRule,
+) -> tuple[float, int] | None:
+    """One try of :func:`_occlusion_target`, the branch's end measured ``skip_px`` of skeleton
+    back from the tip: (gap, index of the skeleton pixel bridged to), or None.
+
+    With ``skip_px`` 0 the rays leave from the skeleton's tip and the target is the far
+    piece's skeleton pixel nearest to where the shortest ray enters it; otherwise the rays leave
+    from the axis there (the tip sits in a corner of the cut) and the target is the far piece's
+    skeleton pixel nearest to its axis :data:`END_ARTEFACT_RADII` radii past the gap.
+    """
+    tangent_px, angles = targets.tangent_px, targets.angles
+    chord = min(edge_length_px - skip_px, _OCCLUSION_CHORD_TANGENTS * tangent_px)
+    outward = _outward_tangent(path.astype(float), skip_px, chord)
     if outward is None:
         return None
-    back = _pixel_at_arc(path, min(tangent_px, 0.5 * edge_length_px)).astype(float)
+    arc = skip_px + min(tangent_px, 0.5 * (edge_length_px - skip_px))
+    back = _pixel_at_arc(path, arc).astype(float)
+    labels = targets.labels
     half_width, offset = _cross_section(labels, own_label, back, outward)
     normal = np.array([-outward[1], outward[0]])
     centre = back + offset * normal  # on the branch's axis
     gap_limit = rule.gap_radii * half_width
-    if gap_limit <= max_gap_px or own_length_px < rule.min_elongation * half_width:
+    if gap_limit <= targets.max_gap_px or own_length_px < rule.min_elongation * half_width:
         return None
-    hit = _shortest_gap_ray(labels, end, outward, angles, own_label, half_width, gap_limit)
+    if skip_px > 0.0:  # from the axis: through the rest of the piece (its slanted cut end too)
+        hit = _shortest_gap_ray(
+            labels, centre, outward, angles, own_label, half_width, gap_limit,
+            lead_px=arc + 2.0 * half_width,
+        )  # fmt: skip
+    else:
+        hit = _shortest_gap_ray(labels, path[0], outward, angles, own_label, half_width, gap_limit)
     if hit is None:
         return None
     gap, entry, label = hit
@@ -303,7 +418,39 @@ def _occlusion_target(
         and abs(far_offset) <= along * np.tan(np.radians(rule.max_angle_deg)) + _RAY_MARGIN_PX
     ):
         return None  # another width, or off to one side: not the same branch going on
-    return _nearest_target(gap, entry, label, pixels, pixel_label, other_component, targetable)
+    if skip_px > 0.0:  # on the far piece's axis, past its end hook
+        past = along - half_width + END_ARTEFACT_RADII * far_half_width
+        on_axis = _first_on_axis(
+            centre + far_offset * normal, outward, past, label, targets.pixels,
+            targets.pixel_label, targets.other_component,  # past the hook: no end zones
+        )  # fmt: skip
+        if on_axis is not None:
+            return gap, on_axis
+        entry = centre + past * outward + far_offset * normal
+    return _nearest_target(gap, entry, label, *targets[1:5])
+
+
+def _first_on_axis(
+    axis_point: np.ndarray,
+    axis: np.ndarray,
+    from_px: float,
+    label: int,
+    pixels: np.ndarray,
+    pixel_label: np.ndarray,
+    allowed: np.ndarray,
+) -> int | None:
+    """Index of the first skeleton pixel of mask component ``label`` (among the ``allowed``)
+    on the axis line through ``axis_point`` along unit ``axis``, beyond ``from_px`` along it
+    (within ``_RAY_MARGIN_PX`` of the line), or None."""
+    offset = pixels - axis_point
+    along = offset @ axis
+    across = np.abs(offset @ np.array([-axis[1], axis[0]]))
+    candidates = np.flatnonzero(
+        (pixel_label == label) & allowed & (across <= _RAY_MARGIN_PX) & (along >= from_px)
+    )
+    if len(candidates) == 0:
+        return None
+    return int(candidates[np.argmin(along[candidates])])
 
 
 def _cross_section(
@@ -337,14 +484,15 @@ def _shortest_gap_ray(
     own_label: int,
     radius_px: float,
     max_gap_px: float,
+    lead_px: float | None = None,
 ) -> tuple[float, np.ndarray, int] | None:
     """March rays from ``start`` at ``angles`` about ``outward``: (gap, entry pixel, label) of
     the ray that enters another mask component after the shortest run of background, if any
-    run is at most ``max_gap_px`` long."""
+    run is at most ``max_gap_px`` long. ``lead_px``: the longest run inside its own silhouette
+    before the gap (default two radii: a skeleton may end well inside a cut end)."""
     h, w = labels.shape
-    # Out of its own silhouette (up to ~2 radii: a skeleton may end well inside a cut end),
-    # across the gap, into the other one.
-    reach = 2.0 * radius_px + max_gap_px + _RAY_MARGIN_PX
+    lead = 2.0 * radius_px if lead_px is None else lead_px
+    reach = lead + max_gap_px + _RAY_MARGIN_PX  # out of its own silhouette, across, into another
     steps = np.arange(0.0, reach, _RAY_STEP_PX)
     cos, sin = np.cos(angles), np.sin(angles)
     dirs = np.stack([cos * outward[0] - sin * outward[1], sin * outward[0] + cos * outward[1]], 1)
@@ -369,6 +517,33 @@ def _shortest_gap_ray(
         if gap <= max_gap_px and (best is None or gap < best[0]):
             best = (gap, pts[r, k], int(ray[k]))
     return best
+
+
+def _width_drop(radii: np.ndarray, tangent_px: float) -> int | None:
+    """Where a skeleton path that starts wide narrows into a thin branch, or None.
+
+    Args:
+        radii: (P,) radii along the path, from its wide end.
+        tangent_px: The stretch (in pixels of path) over which the wide end's radius and the
+            thin branch's are measured.
+
+    Returns:
+        The index of the first pixel narrower than ``1 / _WIDTH_DROP`` of the wide end's radius
+        (median of its first ``tangent_px`` pixels), when the path behind it holds a straight run
+        (:data:`END_ARTEFACT_RADII` radii and ``tangent_px``) and the path beyond it, at least
+        ``tangent_px`` long, stays that thin (median); else None.
+    """
+    n = max(2, int(tangent_px))
+    if len(radii) < 2 * n:
+        return None
+    wide = float(np.median(radii[:n]))
+    narrow = np.flatnonzero(radii < wide / _WIDTH_DROP)
+    if len(narrow) == 0 or narrow[0] < END_ARTEFACT_RADII * wide + tangent_px:
+        return None
+    thin = radii[narrow[0] :]
+    if len(thin) < n or float(np.median(thin)) >= wide / _WIDTH_DROP:
+        return None
+    return int(narrow[0])
 
 
 def _end_zone(graph: SkeletonGraph, edge: SkeletonEdge) -> np.ndarray:
