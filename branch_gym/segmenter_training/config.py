@@ -245,7 +245,7 @@ class OrchardAugmentConfig:
             negatives (target :data:`~branch_gym.segmenter_training.generate.
             TARGET_NEARER_NEGATIVE`), which ``TrainConfig.nearer_negative_weight`` weighs. The
             neighbours' branches crossing in front of the tree are most of the false positives
-            on orchard renders (docs/orchard_segmenter.md, "What the wrong pixels show"), and
+            on orchard renders (docs/results/history.md, "The orchard segmenter"), and
             their larger parallax tells them apart. None: not marked.
     """
 
@@ -309,7 +309,7 @@ class TrainConfig:
         dice_weight: Weight of the soft-Dice term next to the binary cross-entropy.
         side_branch_weight: Weight of side-branch pixels in the cross-entropy (1: as every
             pixel). Side branches are a few pixels wide and a third of their pixels were missed
-            at 1 (docs/orchard_segmenter.md, "Side branches"), while the rotations that find
+            at 1 (docs/results/history.md, "The orchard segmenter"), while the rotations that find
             them need them whole.
         nearer_negative_weight: Weight of the nearer negatives in the cross-entropy (pixels
             of other objects in front of the tree: ``OrchardAugmentConfig.
