@@ -144,4 +144,7 @@ def test_a_scan_past_a_crossing_branch_keeps_the_leader() -> None:
     reports = _scan(Curve2DConfig(), slant_deg=6.0)
     assert _longest_non_consistent_run(reports) <= 3
     assert sum(r.outcome is Outcome.CONSISTENT for r in reports) >= len(reports) - 3
+    # The pieces' end hooks, bridged past, are erased: none is lifted as a side branch (the
+    # leader has none; before the hooks were erased, two were).
+    assert reports[-1].n_secondaries == 0
     assert _longest_non_consistent_run(_scan(_TIP_ONLY, slant_deg=6.0)) >= 20

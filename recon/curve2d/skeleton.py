@@ -226,6 +226,8 @@ def extract_skeleton(mask: np.ndarray, config: SkeletonConfig = SkeletonConfig()
     # Draw the bridges into the skeleton (8-connected lines) and trace it again.
     skel, dist = skel.view(np.uint8).copy(), dist.astype(np.float32, copy=True)
     drawn = np.zeros_like(skel, dtype=bool)
+    for bridge in bridges:  # end hooks left behind by a bridge first (Bridge.erase_uv)
+        skel[bridge.erase_uv[:, 1] - offset_uv[1], bridge.erase_uv[:, 0] - offset_uv[0]] = 0
     for bridge in bridges:
         line = np.zeros_like(skel)
         start = (int(bridge.start_uv[0] - offset_uv[0]), int(bridge.start_uv[1] - offset_uv[1]))

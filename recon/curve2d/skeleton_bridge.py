@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import cv2
@@ -125,12 +125,17 @@ class Bridge:
         end_uv: (2,) int skeleton pixel (u, v) of the other component it reaches.
         radius_px: Radius given to the bridge pixels (the endpoint's).
         gap_px: Estimated gap between the two silhouettes, in pixels.
+        erase_uv: (K, 2) int skeleton pixels (u, v) to remove: the end hooks of a wide piece
+            bridged past them (``OcclusionRule.wide_ends``), which would otherwise stay as
+            spurs into the corners of the cut and be lifted as side branches (measured: two
+            spurious branches on a synthetic leader cut by a crossing branch).
     """
 
     start_uv: np.ndarray
     end_uv: np.ndarray
     radius_px: float
     gap_px: float
+    erase_uv: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), dtype=int))
 
 
 def find_bridges(
@@ -187,6 +192,30 @@ def find_bridges(
         lambda: ~np.concatenate([_end_zone(graph, e) for e in graph.edges])
     )
     u_min, v_min, u_max, v_max = interior_uv
+    pixel_edge = np.repeat(np.arange(len(graph.edges)), [len(e.pixels_uv) for e in graph.edges])
+    edge_first = np.concatenate([[0], np.cumsum([len(e.pixels_uv) for e in graph.edges])[:-1]])
+
+    def far_hook(target: int) -> np.ndarray:
+        """The far piece's end hook beyond a bridge's target: the part of the target's edge
+        from it to an endpoint inside the interior at most ``END_ARTEFACT_RADII + 1`` radii
+        (the target's) of skeleton away (a corner of the cut; a side branch is longer)."""
+        edge = graph.edges[pixel_edge[target]]
+        at = target - edge_first[pixel_edge[target]]
+        radius_px = float(edge.radii_px[at])
+        for node, hook in ((edge.start, edge.pixels_uv[:at]), (edge.end, edge.pixels_uv[at + 1 :])):
+            tip = graph.node_uv[node]
+            if (
+                graph.node_kind[node] == "endpoint"
+                and len(graph.incident_edges(node)) == 1
+                and u_min < tip[0] < u_max
+                and v_min < tip[1] < v_max
+                and len(hook) > 1
+                and np.linalg.norm(np.diff(hook, axis=0), axis=1).sum()
+                <= (END_ARTEFACT_RADII + 1.0) * radius_px
+            ):
+                return hook
+        return edge.pixels_uv[:0]
+
     angles = np.radians(np.linspace(-max_angle_deg, max_angle_deg, _RAYS))
     occlusion_angles = np.radians(
         np.linspace(-occlusion.max_angle_deg, occlusion.max_angle_deg, _RAYS)
@@ -218,9 +247,9 @@ def find_bridges(
                     labels, end, outward, angles, own_label, radius, max_gap_px,
                     pixels, pixel_label, owner != own, targetable,
                 )  # fmt: skip
-            start = _pixel_at_arc(path, radius)
+            start, hook = _pixel_at_arc(path, radius), path[:0]
             if found is None and occlusion.gap_radii > 0:
-                found, start = _occlusion_target(
+                found, start, hook = _occlusion_target(
                     path, edge.length_px, path_radii, own_label, lengths[own],
                     _Targets(labels, pixels, pixel_label, owner != own, targetable,
                              occlusion_angles, max_gap_px, tangent_px),
@@ -229,7 +258,9 @@ def find_bridges(
             if found is None:
                 continue
             gap, target = found
-            bridge = Bridge(start.astype(int), pixels[target].astype(int), radius, gap)
+            if len(hook):  # bridged past its hook: the far piece's goes too
+                hook = np.concatenate([hook, far_hook(target)])
+            bridge = Bridge(start.astype(int), pixels[target].astype(int), radius, gap, hook)
             proposals.append((gap, int(own), int(owner[target]), bridge))
         if occlusion.gap_radii <= 0 or not occlusion.wide_ends:
             continue
@@ -262,7 +293,8 @@ def find_bridges(
             if found is not None:
                 gap, target = found
                 start = _pixel_at_arc(wide, skip_px)
-                bridge = Bridge(start.astype(int), pixels[target].astype(int), radius, gap)
+                hook = far_hook(target)
+                bridge = Bridge(start.astype(int), pixels[target].astype(int), radius, gap, hook)
                 proposals.append((gap, int(own), int(owner[target]), bridge))
     proposals.sort(key=lambda p: (p[0], p[1], p[2]))
     parent = {int(c): int(c) for c in np.unique(component)}
@@ -331,9 +363,10 @@ def _occlusion_target(
     own_length_px: float,
     targets: _Targets,
     rule: OcclusionRule,
-) -> tuple[tuple[float, int] | None, np.ndarray]:
-    """:func:`_bridge_target` for an occlusion bridge (:class:`OcclusionRule`), and the
-    skeleton pixel the bridge leaves from.
+) -> tuple[tuple[float, int] | None, np.ndarray, np.ndarray]:
+    """:func:`_bridge_target` for an occlusion bridge (:class:`OcclusionRule`), the skeleton
+    pixel the bridge leaves from, and the end hook it leaves behind (to erase; empty when the
+    bridge leaves from the tip).
 
     Args:
         path: (P, 2) the terminal edge's skeleton pixels, from the endpoint.
@@ -341,7 +374,8 @@ def _occlusion_target(
         edge_radii_px: (P,) its pixels' radii.
 
     Returns:
-        ((gap, index of the skeleton pixel bridged to) or None, (2,) start pixel (u, v)).
+        ((gap, index of the skeleton pixel bridged to) or None, (2,) start pixel (u, v),
+        (K, 2) hook pixels (u, v)).
 
     Directions and widths are taken over the branch's end, not at the skeleton's tip: a wide
     branch's skeleton bends into a corner of a cut end, so the outward direction is the chord
@@ -359,13 +393,17 @@ def _occlusion_target(
     tangent_px = targets.tangent_px
     start = _pixel_at_arc(path, float(np.median(edge_radii_px[: max(2, int(tangent_px))])))
     if found is not None or not rule.wide_ends:
-        return found, start
+        return found, start, path[:0]
     # The branch's radius over the half of the edge away from the tip (the hook narrows).
     skip_px = END_ARTEFACT_RADII * float(np.median(edge_radii_px[len(edge_radii_px) // 2 :]))
     if edge_length_px - skip_px < tangent_px:
-        return None, start  # no straight run behind the hook
+        return None, start, path[:0]  # no straight run behind the hook
     found = _occlusion_hit(path, edge_length_px, skip_px, own_label, own_length_px, targets, rule)
-    return found, _pixel_at_arc(path, skip_px)
+    steps = np.linalg.norm(np.diff(path.astype(float), axis=0), axis=1)
+    at = min(
+        int(np.searchsorted(np.concatenate([[0.0], np.cumsum(steps)]), skip_px)), len(path) - 1
+    )
+    return found, path[at], path[:at]  # the hook: from the tip to the bridge's start
 
 
 def _occlusion_hit(
@@ -531,7 +569,8 @@ def _width_drop(radii: np.ndarray, tangent_px: float) -> int | None:
         The index of the first pixel narrower than ``1 / _WIDTH_DROP`` of the wide end's radius
         (median of its first ``tangent_px`` pixels), when the path behind it holds a straight run
         (:data:`END_ARTEFACT_RADII` radii and ``tangent_px``) and the path beyond it, at least
-        ``tangent_px`` long, stays that thin (median); else None.
+        ``tangent_px`` and longer than a hook into a corner of a cut (``END_ARTEFACT_RADII + 1``
+        wide radii), stays that thin (median); else None.
     """
     n = max(2, int(tangent_px))
     if len(radii) < 2 * n:
@@ -541,7 +580,10 @@ def _width_drop(radii: np.ndarray, tangent_px: float) -> int | None:
     if len(narrow) == 0 or narrow[0] < END_ARTEFACT_RADII * wide + tangent_px:
         return None
     thin = radii[narrow[0] :]
-    if len(thin) < n or float(np.median(thin)) >= wide / _WIDTH_DROP:
+    # Longer than a hook into a corner of the cut (which the endpoint's own try bridges past).
+    if len(thin) < max(n, (END_ARTEFACT_RADII + 1.0) * wide) or float(np.median(thin)) >= (
+        wide / _WIDTH_DROP
+    ):
         return None
     return int(narrow[0])
 
