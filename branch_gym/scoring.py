@@ -21,10 +21,15 @@ from branch_gym.surroundings import Surroundings, surroundings_of
 from recon.metrics import MetricsConfig, TreeMetrics, evaluate
 from recon.model import TreeModel
 
+# Row columns: the iterations per outcome and the median time per modeler stage.
+OUTCOME_PREFIX = "outcome_"
+STAGE_PREFIX = "stage_"
+
 
 @dataclass
 class ScanResult:
-    """One scored scan (see :func:`score_scan`).
+    """One scored scan (see :func:`score_scan`); a saved one is a
+    :class:`branch_gym.evaluation.trials.TrialRecord`.
 
     Attributes:
         seed: Tree seed (-1 for a tree given without one).
@@ -76,10 +81,10 @@ class ScanResult:
             "n_iterations": self.n_iterations,
             "wall_time_s": self.wall_time_s,
         }
-        row.update({f"outcome_{k}": v for k, v in sorted(self.outcomes.items())})
+        row.update({f"{OUTCOME_PREFIX}{k}": v for k, v in sorted(self.outcomes.items())})
         row.update(self.metrics.to_dict())
         row.update(miss_counts(self.branches))
-        row.update({f"stage_{k}": v for k, v in self.stage_ms.items()})
+        row.update({f"{STAGE_PREFIX}{k}": v for k, v in self.stage_ms.items()})
         return row
 
 

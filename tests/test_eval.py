@@ -44,7 +44,9 @@ from branch_gym.evaluation.trials import (
     trial_path,
 )
 from branch_gym.scan import ScanConfig
+from branch_gym.scoring import ScanResult
 from branch_gym.sim.tree.ground_truth import BranchGT, TreeGT
+from branch_gym.sim.world import WorldConfig
 from recon.config import LEARNED_MASK_MIN_REACH_M, ModelerConfig, modeler_overrides
 from recon.io.folder import ScanFolder
 from recon.metrics import TreeMetrics, aggregate
@@ -145,6 +147,11 @@ def _record(
         scan_time_s=scan_time_s,
         rotations=rotations,
         failure=failure,
+        stop_reason=failure or "end_height",
+        n_iterations=40,
+        outcomes={"consistent": 40},
+        stage_ms={},
+        wall_time_s=1.0,
     )
 
 
@@ -221,6 +228,23 @@ def test_trial_file_round_trip_and_atomic_write(tmp_path: Path) -> None:
     path.write_text("{not json")
     with pytest.raises(ValueError, match=r"cannot read trial file .*1\.json"):
         load_trial(path)
+
+
+def test_a_saved_trial_is_the_scan_result_it_was_made_from(tmp_path: Path) -> None:
+    template = _records()[2]
+    result = ScanResult(
+        template.seed, "periodic:22.5:1.5", template.metrics, template.model, template.truth,
+        30.0, 4, None, "end_height", 42, {"consistent": 40, "inconsistent": 2},
+        {"curve2d": 3.5}, 2.0, planned_top_z_m=0.75,
+    )  # fmt: skip
+    record = TrialRecord.from_scan(result, "periodic:22.5:1.5", "h", "git:abc")
+    path = trial_path(tmp_path, record.policy, record.seed)
+    save_trial(path, record)
+    back = load_trial(path)
+    assert isinstance(back, ScanResult) and back.to_row() == record.row
+    for name in ("stop_reason", "n_iterations", "outcomes", "stage_ms", "wall_time_s", "rotations"):
+        assert getattr(back, name) == getattr(result, name), name
+    assert back.scan_time_s == result.scan_time_s and back.planned_top_z_m == 0.75
 
 
 def test_json_scalar_and_policy_slug() -> None:
@@ -583,6 +607,8 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     del before["frame_pairing"]
     del before["world"]["orchard"], before["world"]["tree"]["architecture"]
     del before["world"]["tree"]["primary_base_height_m"]
+    del before["world"]["tree"]["alley_side_reach_m"]
+    del before["world"]["tree"]["alley_side_half_angle_deg"]
     published = hashlib.sha256(json.dumps(before, sort_keys=True).encode()).hexdigest()[:16]
     assert config_hash(config) == published
     reach = replace(config, modeler=replace(config.modeler, secondary_min_reach_m=0.03))
@@ -590,6 +616,18 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     turn = replace(config, modeler=replace(config.modeler, primary_max_turn_deg=30.0))
     assert config_hash(turn) != published
     assert config_hash(default) not in {published, config_hash(turn)}  # a new rule: new trials
+
+
+def test_the_clean_and_orchard_evaluations_keep_their_hashes() -> None:
+    """Fields added to the scan since (the tree's alley face, the orchard camera's JPEG switch)
+    hash as absent at their defaults: the trials that ``eval.py`` saved for the clean world and
+    for the orchard from pixels (hashes as written by the code of December 2026) stay valid."""
+    clean = ScanConfig(world=WorldConfig.preset("clean"))
+    orchard = ScanConfig(world=WorldConfig.preset("orchard"), segmenter="learned")
+    hashes = [
+        EvalConfig(("none",), 1, scan=s, policy_factory=AGENTS).scan_hash for s in (clean, orchard)
+    ]
+    assert hashes == ["0b7c0f4524858f99", "a95befb214ab854a"]
 
 
 @pytest.mark.parametrize(

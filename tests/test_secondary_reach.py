@@ -95,7 +95,10 @@ def test_the_reach_sweep_rescores_saved_trials(tmp_path) -> None:
     )
     metrics = evaluate(model, truth)
     assert (metrics.n_matched, metrics.n_spurious) == (1, 1)  # over 2.5 cm: scored
-    record = TrialRecord("none", 0, "h", {}, metrics, model, truth, 20.0, 0, None)
+    record = TrialRecord(
+        0, "none", metrics, model, truth, 20.0, 0, None, "end_height", 40, {}, {}, 1.0,
+        config_hash="h", row={},
+    )  # fmt: skip
     save_trial(tmp_path / "none" / "0.json", record)
     totals = sweep(tmp_path / "none", [0.0, LEARNED_MASK_MIN_REACH_M, 0.2])
     assert totals[0.0] == {"n_gt": 1, "n_missed": 0, "n_spurious": 1, "n_duplicates": 0}

@@ -28,8 +28,9 @@ import numpy as np
 
 from branch_gym.attribution import branch_rows, miss_counts
 from branch_gym.files import PARTIAL_WRITE_GLOB, write_json_atomic
+from branch_gym.scoring import OUTCOME_PREFIX, STAGE_PREFIX, ScanResult
 from branch_gym.sim.tree.ground_truth import TreeGT
-from branch_gym.surroundings import Surroundings, surroundings_from_json, surroundings_to_json
+from branch_gym.surroundings import surroundings_from_json, surroundings_to_json
 from recon.config import REMOVED_MODELER_FIELDS
 from recon.metrics import MetricsConfig, TreeMetrics, evaluate
 from recon.model import TreeModel
@@ -44,50 +45,38 @@ Scalar = float | int | str | bool | None
 
 
 @dataclass
-class TrialRecord:
-    """A finished trial, as saved and reloaded.
+class TrialRecord(ScanResult):
+    """A finished trial as saved and reloaded: the scan's :class:`~branch_gym.scoring.ScanResult`
+    and where it came from.
+
+    The scan's fields are :class:`~branch_gym.scoring.ScanResult`'s, as saved: ``policy`` the
+    spec exactly as given on the command line; ``truth`` without its background clutter (not
+    scored, not plotted); ``branches`` with non-finite floats as strings; ``stop_reason``,
+    ``n_iterations``, ``outcomes``, ``stage_ms`` and ``wall_time_s`` read back from the row.
+    ``surroundings``, with ``model``, ``truth`` and the heights, is all that :meth:`rescored`
+    needs.
 
     Attributes:
-        policy: Rotation policy spec, exactly as given on the command line.
-        seed: Tree seed.
         config_hash: :func:`config_hash` of the scan configuration the trial ran with.
-        row: The scan's flat row (``ScanResult.to_row()``), non-finite floats as strings.
-        metrics: The trial's evaluation.
-        model: The reconstruction.
-        truth: The ground-truth tree, without its background clutter (not scored, not plotted).
-        scan_time_s: Simulated scan duration, rotations included.
-        rotations: Rotation moves performed.
-        failure: The failure reason, or None when the scan reached its end height.
-        branches: One row per ground-truth secondary (``ScanResult.branches``), non-finite
-            floats as strings; empty in trial files written before the attribution existed.
+        row: The scan's flat row as saved (``ScanResult.to_row()``, the policy as given),
+            non-finite floats as strings.
         code_version: :func:`code_version` of the code that ran the trial; None in trial files
             written before it was recorded.
-        surroundings: The structures around the tree by kind
-            (:func:`branch_gym.surroundings.surroundings_of`): with ``model``, ``truth`` and the
-            heights, all that :meth:`rescored` needs.
-        planned_top_z_m: The height the scan was to reach (m).
     """
 
-    policy: str
-    seed: int
-    config_hash: str
-    row: dict[str, Scalar]
-    metrics: TreeMetrics
-    model: TreeModel
-    truth: TreeGT
-    scan_time_s: float
-    rotations: int
-    failure: str | None
-    branches: list[dict[str, Scalar]] = field(default_factory=list)
-    code_version: str | None = None
-    surroundings: Surroundings = field(default_factory=dict)
-    planned_top_z_m: float = float("nan")
+    config_hash: str = field(kw_only=True)
+    row: dict[str, Scalar] = field(kw_only=True)
+    code_version: str | None = field(default=None, kw_only=True)
+
+    def to_row(self) -> dict:
+        """The flat row as saved."""
+        return dict(self.row)
 
     @classmethod
     def from_scan(
-        cls, result: Any, policy: str, config_hash: str, code_version: str | None = None
+        cls, result: ScanResult, policy: str, config_hash: str, code_version: str | None = None
     ) -> TrialRecord:
-        """Build a record from a ``branch_gym.scoring.ScanResult``.
+        """Build a record from a scan's result.
 
         Args:
             result: The scan's result.
@@ -109,6 +98,7 @@ class TrialRecord:
             scan_time_s=float(result.scan_time_s),
             rotations=int(result.rotations),
             failure=None if result.failure is None else str(result.failure),
+            **_row_facts(row),
             branches=[{k: json_scalar(v) for k, v in row.items()} for row in result.branches],
             code_version=code_version,
             surroundings=result.surroundings,
@@ -181,6 +171,7 @@ class TrialRecord:
             seed=int(data["seed"]),
             config_hash=str(data["config_hash"]),
             row=dict(data["row"]),
+            **_row_facts(data["row"]),
             metrics=TreeMetrics.from_json_dict(data["metrics"]),
             model=TreeModel.from_dict(data["model"]),
             truth=TreeGT.from_dict(data["truth"]),
@@ -192,6 +183,27 @@ class TrialRecord:
             surroundings=surroundings_from_json(data["surroundings"]),
             planned_top_z_m=float(data["planned_top_z_m"]),
         )
+
+
+def _row_facts(row: dict[str, Scalar]) -> dict[str, Any]:
+    """The scan's facts that a trial file keeps only in its row (:meth:`ScanResult.to_row`):
+    ``stop_reason``, ``n_iterations``, ``outcomes``, ``stage_ms``, ``wall_time_s`` (empty or
+    NaN where a row lacks them)."""
+    return {
+        "stop_reason": str(row.get("stop_reason") or ""),
+        "n_iterations": int(row.get("n_iterations") or 0),
+        "outcomes": {
+            k.removeprefix(OUTCOME_PREFIX): int(v)
+            for k, v in row.items()
+            if k.startswith(OUTCOME_PREFIX)
+        },
+        "stage_ms": {
+            k.removeprefix(STAGE_PREFIX): float(v)
+            for k, v in row.items()
+            if k.startswith(STAGE_PREFIX)
+        },
+        "wall_time_s": float(row.get("wall_time_s", "nan")),
+    }
 
 
 @functools.cache
