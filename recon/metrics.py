@@ -68,7 +68,7 @@ SURROUNDING_KINDS = ("detail", "neighbour", "trellis", "clutter")
 # Every class of a reconstructed side branch (module docstring), in report order.
 BRANCH_CLASSES = ("match", "duplicate", *SURROUNDING_KINDS, "spurious", "out_of_scope", "short")
 # Classes held against precision: what is not a distinct side branch of the scanned tree.
-_NOT_PRECISE = ("duplicate", "neighbour", "trellis", "clutter", "spurious")
+NOT_PRECISE = ("duplicate", "neighbour", "trellis", "clutter", "spurious")
 
 
 class BranchLike(Protocol):
@@ -540,7 +540,7 @@ def precision_percent(trials: Sequence[TreeMetrics]) -> float:
     """Side-branch precision pooled over trials: 100 sum(matched) / sum(matched + held against
     precision) (module docstring); NaN when no trial reconstructed a scored branch."""
     matched = sum(t.class_counts["match"] for t in trials)
-    held = sum(t.class_counts[name] for t in trials for name in _NOT_PRECISE)
+    held = sum(t.class_counts[name] for t in trials for name in NOT_PRECISE)
     return PERCENT * matched / (matched + held) if matched + held else float("nan")
 
 

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from types import SimpleNamespace
 
-import numpy as np
 import pytest
 
 from branch_gym.evaluation.benchmark import (
@@ -14,11 +12,14 @@ from branch_gym.evaluation.benchmark import (
     VERSION_HISTORY,
     BenchmarkOutcome,
     Stratum,
+    TrialRow,
     benchmark,
+    load_rows,
+    save_rows,
     training_seeds,
 )
 from branch_gym.evaluation.benchmark_page import benchmark_results, format_page
-from recon.metrics import TreeMetrics
+from recon.metrics import BRANCH_CLASSES
 
 
 def test_a_benchmark_definition_cannot_change_without_its_version() -> None:
@@ -54,37 +55,21 @@ def test_splits_are_held_out_from_training_and_do_not_overlap() -> None:
         benchmark("nope")
 
 
-def _trial(policy: str, seed: int, n_gt: int, missed: int, time_s: float, spur: bool = False):
-    classes = ["match"] * (n_gt - missed) + (["detail"] if spur else [])
-    metrics = TreeMetrics(
-        pb_residuals_m=np.zeros(1),
-        pb_radius_errors_m=np.zeros(1),
-        sb_residuals_m=np.zeros(0),
-        sb_radius_errors_m=np.zeros(0),
-        matches=[],
-        n_gt=n_gt,
-        n_matched=n_gt - missed,
-        n_missed=missed,
-        n_spurious=0,
-        n_duplicates=0,
-        n_ignored_reconstructed=0,
-        scanned_top_z_m=0.75,
-        reconstructed_classes=classes,
-    )
-    return SimpleNamespace(policy=policy, seed=seed, metrics=metrics, scan_time_s=time_s,
-                           failure=None)  # fmt: skip
+def _row(policy: str, seed: int, n_gt: int, missed: int, time_s: float) -> TrialRow:
+    classes = dict.fromkeys(BRANCH_CLASSES, 0) | {"match": n_gt - missed, "detail": 1}
+    return TrialRow("paper", policy, seed, n_gt, missed, 0, 0, classes, time_s, None)
 
 
 def test_the_results_page_pairs_every_policy_with_the_references() -> None:
     bench = benchmark("paper-v1")
     seeds = range(100_000, 100_040)
     # 40 trees of 10 branches: none misses 2 a tree, the paper's 1, the bound 0 on every tree.
-    records = [
-        _trial(p, s, 10, m, t, spur=True)
+    rows = [
+        _row(p, s, 10, m, t)
         for p, m, t in (("none", 2, 20.0), ("periodic:22.5:1.5", 1, 35.0), ("privileged", 0, 25.0))
         for s in seeds
     ]
-    outcome = BenchmarkOutcome(bench, "test", {"paper": records})
+    outcome = BenchmarkOutcome(bench, "test", rows)
     results = benchmark_results(outcome, seed=0)
     none = results["policies"]["none"]
     assert none["missed_pct"] == pytest.approx(20.0)
@@ -114,3 +99,47 @@ def test_the_command_refuses_scan_options_beside_a_benchmark(tmp_path, capsys) -
     )
     with pytest.raises(SystemExit):
         evaluate(["--benchmark", "nope-v9", "--policies", "none", "--out", str(tmp_path)])
+
+
+def test_rows_are_the_record_a_later_session_resumes_from(tmp_path) -> None:
+    paper = benchmark("paper-v1")
+    rows = [_row("none", 100_000 + k, 3, k % 2, 20.0) for k in range(3)]
+    save_rows(tmp_path, paper, rows)
+    loaded = load_rows(tmp_path, paper)
+    assert list(loaded.values()) == rows
+    assert loaded["paper", "none", 100_001].n_missed == 1
+    other = replace(paper, name="paper-v2", scan_changes=(("speed_mps", 0.05),))
+    with pytest.raises(ValueError, match="holds rows of paper-v1 digest"):
+        load_rows(tmp_path, other)
+    (tmp_path / "rows.jsonl").write_text(
+        (tmp_path / "rows.jsonl").read_text() + '{"policy": "none"}\n'
+    )
+    with pytest.raises(ValueError, match="line 5: not a trial row"):
+        load_rows(tmp_path, paper)
+
+
+@pytest.mark.slow
+def test_a_benchmark_runs_resumes_from_its_rows_and_writes_its_page(tmp_path) -> None:
+    import shutil
+
+    from agents.factory import AGENTS
+    from branch_gym.evaluation.benchmark import run_benchmark
+    from branch_gym.evaluation.benchmark_page import benchmark_results, write_benchmark_page
+
+    tiny = replace(
+        benchmark("paper-v1"),
+        name="tiny-v1",
+        strata=(Stratum("paper", "paper", (100_000, 2), (100_100, 1)),),
+        tracker="oracle",
+        scan_changes=(("end_height_m", 0.4),),
+    )
+    outcome = run_benchmark(tiny, ["none"], "test", tmp_path, AGENTS)
+    assert len(outcome.computed) == 6  # none, the paper's controller, the bound: 2 trees each
+    assert {r.policy for r in outcome.rows} == {"none", "periodic:22.5:1.5", "privileged"}
+    for row in outcome.rows:
+        assert sum(row.classes.values()) >= 0 and 0 <= row.n_missed <= row.n_gt
+    shutil.rmtree(tmp_path / "paper" / "trials")  # a later session has the rows, not the trials
+    again = run_benchmark(tiny, ["none"], "test", tmp_path, AGENTS)
+    assert again.computed == [] and again.rows == outcome.rows
+    files = write_benchmark_page(tmp_path, benchmark_results(again), "python eval.py ...")
+    assert "| `none` |" in files[1].read_text()

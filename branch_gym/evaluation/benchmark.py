@@ -28,8 +28,14 @@ from pathlib import Path
 
 from branch_gym.env.config import scan_with_tree
 from branch_gym.evaluation.config import EvalConfig, TrialKey
-from branch_gym.evaluation.pipeline import EvalOutcome, run_evaluation
-from branch_gym.evaluation.trials import TrialRecord, config_to_dict
+from branch_gym.evaluation.runner import check_output_folder, run_trials
+from branch_gym.evaluation.trials import (
+    TrialRecord,
+    config_to_dict,
+    load_trial,
+    remove_partial_writes,
+    trial_path,
+)
 from branch_gym.policy import PolicyFactory
 from branch_gym.scan import ScanConfig
 from branch_gym.scoring import scan_metrics_config
@@ -235,6 +241,101 @@ def training_seeds(count: int, first: int = 0) -> range:
     return range(first, first + count)
 
 
+@dataclass(frozen=True)
+class TrialRow:
+    """What the results page needs of one trial: a line of ``OUT/rows.jsonl``.
+
+    The rows are the benchmark's record: small enough to commit (a run that spans sessions keeps
+    its rows, not its trial files) and enough for every figure of the page. The statistics read
+    a row as they read a trial (``row.metrics.n_missed``, ``row.scan_time_s``).
+
+    Attributes:
+        stratum: The stratum's name.
+        policy: The policy spec.
+        seed: The tree seed.
+        n_gt: In-scope side branches.
+        n_missed: Of them, missed (the unreached included).
+        n_unreached: Missed because the scan stopped below them.
+        n_unreached_matched: Above where the scan stopped, matched all the same.
+        classes: Reconstructed side branches per class (``recon.metrics.BRANCH_CLASSES``).
+        scan_time_s: Simulated scan time (s).
+        failure: The failure reason, or None.
+        code_version: The code that ran the trial.
+    """
+
+    stratum: str
+    policy: str
+    seed: int
+    n_gt: int
+    n_missed: int
+    n_unreached: int
+    n_unreached_matched: int
+    classes: dict[str, int]
+    scan_time_s: float
+    failure: str | None
+    code_version: str | None = None
+
+    @property
+    def metrics(self) -> TrialRow:
+        """The row itself: the counts where a trial record keeps them."""
+        return self
+
+    @classmethod
+    def of(cls, record: TrialRecord, stratum: str) -> TrialRow:
+        """The row of a (scored) trial record."""
+        m = record.metrics
+        return cls(
+            stratum, record.policy, record.seed, m.n_gt, m.n_missed, m.n_unreached,
+            m.n_unreached_matched, dict(m.class_counts), float(record.scan_time_s),
+            record.failure, record.code_version,
+        )  # fmt: skip
+
+    @classmethod
+    def from_json_dict(cls, data: dict) -> TrialRow:
+        return cls(**data)
+
+
+ROWS_FILE = "rows.jsonl"  # under OUT: a header line (the definition's digest), then one row a trial
+
+
+def load_rows(out: Path, bench: Benchmark) -> dict[tuple[str, str, int], TrialRow]:
+    """The rows saved under ``out``, by (stratum, policy, seed); none when there is no file.
+
+    Raises:
+        ValueError: the rows were made under another definition (its digest), or a line is bad.
+    """
+    path = out / ROWS_FILE
+    if not path.exists():
+        return {}
+    lines = path.read_text().splitlines()
+    header = json.loads(lines[0]) if lines else {}
+    if header.get("digest") != bench.digest():
+        raise ValueError(
+            f"{path} holds rows of {header.get('benchmark')} digest {header.get('digest')}, not "
+            f"of {bench.name} digest {bench.digest()}: use another --out"
+        )
+    rows = {}
+    for number, line in enumerate(lines[1:], start=2):
+        try:
+            row = TrialRow.from_json_dict(json.loads(line))
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"{path} line {number}: not a trial row ({exc})") from exc
+        rows[row.stratum, row.policy, row.seed] = row
+    return rows
+
+
+def save_rows(out: Path, bench: Benchmark, rows: Sequence[TrialRow]) -> Path:
+    """Write ``OUT/rows.jsonl`` atomically (header, then the rows in order)."""
+    header = {"benchmark": bench.name, "digest": bench.digest()}
+    text = "\n".join(json.dumps(line) for line in [header, *map(asdict, rows)]) + "\n"
+    path = out / ROWS_FILE
+    out.mkdir(parents=True, exist_ok=True)
+    partial = path.with_suffix(".partial")
+    partial.write_text(text)
+    partial.replace(path)
+    return path
+
+
 @dataclass
 class BenchmarkOutcome:
     """What :func:`run_benchmark` did.
@@ -242,19 +343,14 @@ class BenchmarkOutcome:
     Attributes:
         benchmark: The benchmark.
         split: "test" or "validation".
-        records: Stratum name -> its trials (scored under the benchmark's rules).
-        outcomes: Stratum name -> its evaluation (per-stratum outputs under ``out/NAME``).
+        rows: Every trial of the split's policies, stratum then policy then seed order.
+        computed: (stratum, policy, seed) of the trials run this time.
     """
 
     benchmark: Benchmark
     split: str
-    records: dict[str, list[TrialRecord]]
-    outcomes: dict[str, EvalOutcome] = field(default_factory=dict)
-
-    @property
-    def computed(self) -> list[tuple[str, TrialKey]]:
-        """(stratum, trial) of every trial run this time."""
-        return [(name, key) for name, o in self.outcomes.items() for key in o.computed]
+    rows: list[TrialRow]
+    computed: list[tuple[str, str, int]] = field(default_factory=list)
 
 
 def run_benchmark(
@@ -272,9 +368,12 @@ def run_benchmark(
 ) -> BenchmarkOutcome:
     """Evaluate ``policies`` (with the benchmark's references) on one split, resuming.
 
-    Each stratum is one evaluation under ``out/<stratum>`` (``run_evaluation``: trials saved
-    as they finish, loaded when saved); the trials are then scored under the benchmark's rules
-    (:meth:`TrialRecord.rescored`, no re-run).
+    Each stratum's trials run as an evaluation's do (``OUT/<stratum>/trials``: saved as they
+    finish, loaded when saved); as each finishes it is scored under the benchmark's rules
+    (:meth:`TrialRecord.rescored` where they differ from the scan's defaults) and its row added
+    to ``OUT/rows.jsonl``. A trial that has a row is done, with or without its trial file: commit
+    the rows (and the page) and a later session on another machine resumes where this one
+    stopped.
 
     Args:
         bench: The benchmark.
@@ -287,18 +386,22 @@ def run_benchmark(
         address: Ray cluster address (Ray backend).
         trees: Only the first ``trees`` seeds of each stratum (a quick look; the results page
             says so), None for the whole split.
-        on_start: Called per stratum with (its trials, those already saved).
+        on_start: Called per stratum with (its trials, those already done).
         on_done: Called after each trial run.
+
+    Raises:
+        ValueError: rows of another definition in ``out``; a bad spec.
+        ConfigMismatchError: trial files of another scan configuration in ``out/<stratum>``.
+        TrialError: a trial raised (the finished ones keep their rows).
     """
     policies = bench.policies_with_references(policies)
-    outcome = BenchmarkOutcome(bench, split, {})
+    rows = load_rows(out, bench)
+    outcome = BenchmarkOutcome(bench, split, [])
     for stratum in bench.strata:
         first, count = stratum.seeds(split)
-        if trees is not None:
-            count = min(count, trees)
         config = EvalConfig(
             policies,
-            count,
+            count if trees is None else min(count, trees),
             first,
             workers,
             bench.scan_config(stratum),
@@ -306,10 +409,53 @@ def run_benchmark(
             address=address,
             policy_factory=factory,
         )
-        result = run_evaluation(config, out / stratum.name, [], on_start, on_done)
-        metrics = bench.metrics_config(stratum)
-        outcome.outcomes[stratum.name] = result
-        # Trials are scored by the scan's default rules when they run; other rules re-score them.
-        same = metrics == scan_metrics_config(config.scan)
-        outcome.records[stratum.name] = [r if same else r.rescored(metrics) for r in result.records]
+        folder = out / stratum.name
+        folder.mkdir(parents=True, exist_ok=True)
+        check_output_folder(config, folder)
+        remove_partial_writes(folder)
+        scorer = _RowScorer(bench, stratum, folder, config.scan, rows)
+        for key in config.keys:  # trial files from a run that kept no rows
+            if scorer.key(key) not in rows and trial_path(folder, *key).exists():
+                scorer.add(key)
+        todo = [key for key in config.keys if scorer.key(key) not in rows]
+        if on_start is not None:
+            on_start(len(config.keys), len(config.keys) - len(todo))
+
+        def finished(key: TrialKey, scorer: _RowScorer = scorer) -> None:
+            scorer.add(key)
+            save_rows(out, bench, list(rows.values()))
+            if on_done is not None:
+                on_done(key)
+
+        run_trials(config, folder, todo, finished)
+        outcome.computed += [scorer.key(key) for key in todo]
+        outcome.rows += [rows[scorer.key(key)] for key in config.keys]
+    save_rows(out, bench, list(rows.values()))
     return outcome
+
+
+class _RowScorer:
+    """Adds the row of a saved trial of one stratum, scored under the benchmark's rules."""
+
+    def __init__(
+        self,
+        bench: Benchmark,
+        stratum: Stratum,
+        folder: Path,
+        scan: ScanConfig,
+        rows: dict[tuple[str, str, int], TrialRow],
+    ) -> None:
+        self.stratum, self.folder, self.rows = stratum, folder, rows
+        self.metrics = bench.metrics_config(stratum)
+        # Trials are scored by the scan's default rules when they run; other rules re-score.
+        self.rescore = self.metrics != scan_metrics_config(scan)
+
+    def key(self, key: TrialKey) -> tuple[str, str, int]:
+        """(stratum, policy, seed) of a trial of this stratum."""
+        return (self.stratum.name, key[0], key[1])
+
+    def add(self, key: TrialKey) -> None:
+        record = load_trial(trial_path(self.folder, *key))
+        if self.rescore:
+            record = record.rescored(self.metrics)
+        self.rows[self.key(key)] = TrialRow.of(record, self.stratum.name)

@@ -20,12 +20,16 @@ from pathlib import Path
 
 import numpy as np
 
-from branch_gym.evaluation.benchmark import BenchmarkOutcome
+from branch_gym.evaluation.benchmark import BenchmarkOutcome, TrialRow
 from branch_gym.evaluation.power import PairedSample, predicted_half_width, trees_for_half_width
-from branch_gym.evaluation.statistics import BootstrapConfig, bootstrap_ci, paired_comparison
-from branch_gym.evaluation.trials import TrialRecord
+from branch_gym.evaluation.statistics import (
+    PERCENT,
+    BootstrapConfig,
+    bootstrap_ci,
+    paired_comparison,
+)
 from branch_gym.files import write_json_atomic
-from recon.metrics import BRANCH_CLASSES, aggregate
+from recon.metrics import BRANCH_CLASSES, NOT_PRECISE, SURROUNDING_KINDS
 
 PAGE = "benchmark.md"
 RESULTS = "benchmark.json"
@@ -47,26 +51,30 @@ def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
     rows = {}
     for policy in policies:
         records = by_policy[policy]
-        stats = aggregate([r.metrics for r in records])
         ci = bootstrap_ci(records, np.random.default_rng(seed))
         time_s = np.array([r.scan_time_s for r in records])
-        missed = np.array([r.metrics.n_missed for r in records])
+        missed = np.array([r.n_missed for r in records])
+        n_gt = sum(r.n_gt for r in records)
+        classes = {name: sum(r.classes.get(name, 0) for r in records) for name in BRANCH_CLASSES}
+        held = sum(classes[name] for name in NOT_PRECISE)
         row = {
             "trees": len(records),
-            "n_gt": stats["n_gt"],
-            "n_missed": stats["n_missed"],
-            "missed_pct": stats["missed_pct"],
+            "n_gt": n_gt,
+            "n_missed": int(missed.sum()),
+            "missed_pct": _percent(missed.sum(), n_gt),
             "missed_pct_ci": ci["missed_pct_ci"],
-            "precision_pct": stats["precision_pct"],
-            "spurious_pct": stats["spurious_pct"],
-            "spurious_paper_pct": stats["spurious_paper_pct"],
-            "duplicate_pct": stats["duplicate_pct"],
-            "n_unreached": stats["n_unreached"],
+            "precision_pct": _percent(classes["match"], classes["match"] + held),
+            "spurious_pct": _percent(classes["spurious"], n_gt),
+            "spurious_paper_pct": _percent(
+                classes["spurious"] + sum(classes[kind] for kind in SURROUNDING_KINDS), n_gt
+            ),
+            "duplicate_pct": _percent(classes["duplicate"], n_gt),
+            "n_unreached": sum(r.n_unreached for r in records),
             "scan_time_s": float(time_s.mean()),
             "scan_time_s_ci": ci["scan_time_s_ci"],
             "failures": sum(r.failure is not None for r in records),
             "cost_branches_per_tree": float(np.mean(missed + time_s / bench.branch_value_s)),
-            "classes": {name: stats[f"n_class_{name}"] for name in BRANCH_CLASSES},
+            "classes": classes,
         }
         for name, other in (("reference", reference), ("bound", bound)):
             if policy == (bench.reference_policy if name == "reference" else bench.bound_policy):
@@ -74,11 +82,7 @@ def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
             rng = np.random.default_rng(seed)
             row[f"vs_{name}"] = paired_comparison(records, other, rng)
         if policy != bench.reference_policy:
-            sample = _paired_sample(records, reference)
-            row["power"] = {
-                "half_width_pct": predicted_half_width(sample, len(records)),
-                "trees_for_1_point": trees_for_half_width(sample, TARGET_HALF_WIDTH_PCT),
-            }
+            row["power"] = _power(records, reference)
         rows[policy] = row
     headroom = paired_comparison(
         by_policy[bench.baseline_policy], bound, np.random.default_rng(seed)
@@ -87,7 +91,7 @@ def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
         "benchmark": bench.name,
         "digest": bench.digest(),
         "split": outcome.split,
-        "strata": {name: len(records) for name, records in _trees_by_stratum(outcome).items()},
+        "strata": _trees_by_stratum(outcome),
         "branch_value_s": bench.branch_value_s,
         "reference_policy": bench.reference_policy,
         "bound_policy": bench.bound_policy,
@@ -151,7 +155,7 @@ def format_page(results: dict, command: str) -> str:
         "|---|---|---|",
     ]
     for policy, row in rows.items():
-        if "power" in row:
+        if row.get("power"):
             power = row["power"]
             lines.append(
                 f"| `{policy}` | {power['half_width_pct']:.2f} | {power['trees_for_1_point']} |"
@@ -169,27 +173,46 @@ def format_page(results: dict, command: str) -> str:
     return "\n".join(lines)
 
 
-def _pooled(outcome: BenchmarkOutcome) -> dict[str, list[TrialRecord]]:
+def _pooled(outcome: BenchmarkOutcome) -> dict[str, list[TrialRow]]:
     """Policy -> its trials over every stratum, in stratum then seed order."""
-    pooled: dict[str, list[TrialRecord]] = {}
-    for records in outcome.records.values():
-        for record in records:
-            pooled.setdefault(record.policy, []).append(record)
+    pooled: dict[str, list[TrialRow]] = {}
+    for row in outcome.rows:
+        pooled.setdefault(row.policy, []).append(row)
     return pooled
 
 
-def _trees_by_stratum(outcome: BenchmarkOutcome) -> dict[str, set[int]]:
-    return {name: {r.seed for r in records} for name, records in outcome.records.items()}
+def _trees_by_stratum(outcome: BenchmarkOutcome) -> dict[str, int]:
+    """Stratum -> its trees in the outcome."""
+    trees: dict[str, set[int]] = {}
+    for row in outcome.rows:
+        trees.setdefault(row.stratum, set()).add(row.seed)
+    return {name: len(seeds) for name, seeds in trees.items()}
 
 
-def _paired_sample(a: Sequence[TrialRecord], b: Sequence[TrialRecord]) -> PairedSample:
+def _percent(count: float, total: float) -> float | None:
+    return float(PERCENT * count / total) if total else None
+
+
+def _power(a: Sequence[TrialRow], b: Sequence[TrialRow]) -> dict | None:
+    """The power entry of ``a`` against ``b``; None with under two trees or no branch."""
+    try:
+        sample = _paired_sample(a, b)
+    except ValueError:
+        return None
+    return {
+        "half_width_pct": predicted_half_width(sample, len(a)),
+        "trees_for_1_point": trees_for_half_width(sample, TARGET_HALF_WIDTH_PCT),
+    }
+
+
+def _paired_sample(a: Sequence[TrialRow], b: Sequence[TrialRow]) -> PairedSample:
     a_sorted, b_sorted = sorted(a, key=lambda r: r.seed), sorted(b, key=lambda r: r.seed)
     if [r.seed for r in a_sorted] != [r.seed for r in b_sorted]:
         raise ValueError("a paired sample needs both policies on the same tree seeds")
     return PairedSample(
-        np.array([r.metrics.n_missed for r in a_sorted], float),
-        np.array([r.metrics.n_missed for r in b_sorted], float),
-        np.array([r.metrics.n_gt for r in a_sorted], float),
+        np.array([r.n_missed for r in a_sorted], float),
+        np.array([r.n_missed for r in b_sorted], float),
+        np.array([r.n_gt for r in a_sorted], float),
     )
 
 
