@@ -244,7 +244,10 @@ def test_gif_fallback_without_mp4_codec(tmp_path, monkeypatch):
         def isOpened(self):
             return False
 
-    monkeypatch.setattr("recon.replay.writers.cv2.VideoWriter", NoCodec)
+    import importlib
+
+    writers = importlib.import_module("recon.replay.writers")
+    monkeypatch.setattr(writers.cv2, "VideoWriter", NoCodec)
     video = OverlayVideo(tmp_path, (32, 24), ReplayConfig(gif_max_frames=3))
     for i in range(7):
         video.write(np.full((24, 32, 3), 30 * i, np.uint8))

@@ -114,8 +114,12 @@ def test_record_episode_statistics_reports_return_and_length(plain_episode) -> N
 
 def test_spec_and_kwargs_round_trip_through_make(plain_episode) -> None:
     kwargs = {**SHORT, "tree": "hard", "reward": {"match_reward": 2.0}, "speed_mps": 0.03}
-    env = gymnasium.make(branch_gym.ENV_ID_V0, render_mode="rgb_array", max_episode_steps=50, **kwargs)
-    assert env.spec.kwargs == {"action_type": "continuous", "render_mode": "rgb_array", **kwargs}
+    env = gymnasium.make(
+        branch_gym.ENV_ID_V0, render_mode="rgb_array", max_episode_steps=50, **kwargs
+    )
+    assert env.spec.kwargs == {
+        "action_type": "continuous", "paper_scoring": True, "render_mode": "rgb_array", **kwargs
+    }  # fmt: skip
     # From the spec object, and from its JSON text (kwargs made of JSON values).
     for spec in (env.spec, EnvSpec.from_json(env.spec.to_json())):
         again = gymnasium.make(spec)
