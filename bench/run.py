@@ -26,6 +26,7 @@ BENCHMARKS = [
     "bench.bench_env",
     "bench.bench_train",
     "bench.bench_ray",
+    "bench.bench_benchmark",
 ]
 DEFAULT_OUT = Path(__file__).with_name("results.json")
 TRAIN_CORES = 2
