@@ -165,13 +165,8 @@ def main(
         )
     except (ValueError, TypeError) as exc:
         parser.error(str(exc))
-    if config.backend == "ray":
-        try:
-            import_ray()  # before any output is written
-        except RayUnavailableError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return EXIT_USAGE
-
+    if not _backend_ready(config.backend):
+        return EXIT_USAGE
     progress = _Progress()
     try:
         outcome = run_evaluation(
@@ -194,12 +189,8 @@ def main(
 def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFactory) -> int:
     """``--benchmark``: run (or resume) the split, write the results page, print it."""
     bench = benchmark(args.benchmark)
-    if args.backend == "ray":
-        try:
-            import_ray()
-        except RayUnavailableError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return EXIT_USAGE
+    if not _backend_ready(args.backend):
+        return EXIT_USAGE
     progress = _Progress()
     try:
         outcome = run_benchmark(
@@ -219,6 +210,18 @@ def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFac
     print(files[1].read_text())
     print("wrote " + ", ".join(str(path) for path in files))
     return 0
+
+
+def _backend_ready(backend: str) -> bool:
+    """Whether the backend can run: Ray is imported before any output is written."""
+    if backend != "ray":
+        return True
+    try:
+        import_ray()
+    except RayUnavailableError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return False
+    return True
 
 
 class _Progress:
