@@ -373,7 +373,8 @@ def run_benchmark(
     (:meth:`TrialRecord.rescored` where they differ from the scan's defaults) and its row added
     to ``OUT/rows.jsonl``. A trial that has a row is done, with or without its trial file: commit
     the rows (and the page) and a later session on another machine resumes where this one
-    stopped.
+    stopped. Trials run seed by seed, every policy on a tree before the next tree, so a run
+    stopped early has the first trees of every policy (``trees`` then tables them).
 
     Args:
         bench: The benchmark.
@@ -417,7 +418,9 @@ def run_benchmark(
         for key in config.keys:  # trial files from a run that kept no rows
             if scorer.key(key) not in rows and trial_path(folder, *key).exists():
                 scorer.add(key)
-        todo = [key for key in config.keys if scorer.key(key) not in rows]
+        # Seed by seed, every policy: a run stopped early leaves the same trees of each policy.
+        keys = sorted(config.keys, key=lambda k: (k[1], config.policies.index(k[0])))
+        todo = [key for key in keys if scorer.key(key) not in rows]
         if on_start is not None:
             on_start(len(config.keys), len(config.keys) - len(todo))
 
