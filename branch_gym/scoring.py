@@ -89,7 +89,10 @@ class ScanResult:
 
 
 def score_scan(
-    session: ScanSession, policy: str = "", metrics_config: MetricsConfig | None = None
+    session: ScanSession,
+    policy: str = "",
+    metrics_config: MetricsConfig | None = None,
+    surroundings: Surroundings | None = None,
 ) -> ScanResult:
     """Score a session's current model against its tree's ground truth.
 
@@ -98,6 +101,8 @@ def score_scan(
         policy: Recorded in the result.
         metrics_config: The scoring rules; by default the authors' thresholds over the scan's
             band (:func:`scan_metrics_config`), branches up to the planned end height in scope.
+        surroundings: The structures around the session's tree, when the caller has them
+            (:func:`session_surroundings`, read once per tree); None reads them here.
 
     Raises:
         RuntimeError: the session has not been reset.
@@ -105,7 +110,8 @@ def score_scan(
     if session.tree is None:
         raise RuntimeError("ScanSession.reset(seed) must be called before scoring the scan")
     model = session.model
-    surroundings = session_surroundings(session)
+    if surroundings is None:
+        surroundings = session_surroundings(session)
     planned_top_m = session.config.end_height_m
     metrics = evaluate(
         model,

@@ -368,7 +368,7 @@ class BranchScanEnv(gym.Env):
 
     def result(self) -> ScanResult:
         """The current scan scored against the ground truth (``policy="env"``)."""
-        return score_scan(self._session, "env")
+        return score_scan(self._session, "env", surroundings=self._surroundings)
 
     def target_angle_deg(self, action: Any, current_angle_deg: float | None = None) -> float:
         """The target angle (deg) that ``action`` commands from ``current_angle_deg``.

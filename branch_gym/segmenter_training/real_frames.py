@@ -59,12 +59,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize
 
+from branch_gym.sim.scene.labels import FIRST_SECONDARY_LABEL, PRIMARY_LABEL, own_uprights_label
 from recon.camera import DEFAULT_HEIGHT_PX, DEFAULT_WIDTH_PX
 from recon.curve2d.fit import fit_mask_curves, points_in_mask
 from recon.curve2d.types import Curve2D, Curve2DConfig, MaskCurves
 from recon.frame import as_binary_mask
 from recon.io.rescale import resize_image, resize_mask
-from recon.segmentation.flow import swap_red_blue
+from recon.segmentation.flow import flow_to_picture_fast, swap_red_blue
 from recon.segmentation.metrics import pooled_iou
 from recon.validation import require_non_negative, require_positive
 
@@ -343,13 +344,6 @@ def frames_from_renders(data: dict[str, np.ndarray]) -> list[RealFrame]:
     Raises:
         ValueError: ``data`` lacks ``n_secondaries`` (shards written before it was stored).
     """
-    from branch_gym.sim.scene.labels import (
-        FIRST_SECONDARY_LABEL,
-        PRIMARY_LABEL,
-        own_uprights_label,
-    )
-    from recon.segmentation.flow import flow_to_picture_fast
-
     if "n_secondaries" not in data:
         raise ValueError(
             "render frames need shards that store n_secondaries: generate them again with "
