@@ -116,12 +116,16 @@ class Modeler:
         self._inconsistent_streak = 0
         self._iterations = 0
         self._primary = None
+        self.hold_primary = False
         self._secondaries = SecondaryBranches(self.config, self.rng)
 
     @property
     def model(self) -> TreeModel:
         """The current tree model (copies are cheap; arrays are shared)."""
         return TreeModel(self._primary, self._secondaries.models())
+
+    # hold_primary: while True (the robot orbits the branch, so the view turns while the branch
+    # stays), a mask that disagrees with the model is Inconsistent and never restarts it.
 
     @property
     def inconsistent_streak(self) -> int:
@@ -220,7 +224,10 @@ class Modeler:
                     projected.visible.any()
                     and report.consistency_fraction < cfg.consistency_min_fraction
                 ):
-                    skip = self._inconsistent_streak + 1 < cfg.restart_after_inconsistent
+                    skip = (
+                        self.hold_primary
+                        or self._inconsistent_streak + 1 < cfg.restart_after_inconsistent
+                    )
                     restart = not skip
         if skip:
             return self._inconsistent(report, frame, "model disagrees with mask")

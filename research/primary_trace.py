@@ -29,6 +29,7 @@ import numpy as np
 import recon.modeler as modeler_module
 from agents.factory import AGENTS
 from branch_gym.cli_options import add_scan_options, scan_config
+from branch_gym.evaluation.benchmark import benchmark
 from branch_gym.evaluation.episodes import run_trial
 from branch_gym.scan import ScanConfig
 
@@ -99,11 +100,17 @@ def main() -> None:
         defaults={"world": "orchard", "tree": "paper", "segmenter": "learned"},
         modeler_example="over the defaults, e.g. primary_max_turn_deg=null",
     )
+    parser.add_argument(
+        "--benchmark", default=None, help="scan as this benchmark's first stratum does (orchard-v1)"
+    )
     parser.add_argument("--first", type=int, default=1, help="first iteration drawn")
     parser.add_argument("--last", type=int, default=None, help="last iteration drawn")
     parser.add_argument("--out", type=Path, default=None, help="PNG of the tiles")
     args = parser.parse_args()
     scan = scan_config(args)
+    if args.benchmark:
+        bench = benchmark(args.benchmark)
+        scan = bench.scan_config(bench.strata[0])
     entries = trace(args.seed, args.policy, scan)
     last = args.last or len(entries)
     chosen = [e for e in entries if args.first <= e["report"].index <= last]

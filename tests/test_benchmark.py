@@ -8,6 +8,7 @@ import pytest
 
 from branch_gym.evaluation.benchmark import (
     BENCHMARKS,
+    HELD_OUT_SEED_END,
     HELD_OUT_SEED_START,
     VERSION_HISTORY,
     BenchmarkOutcome,
@@ -16,9 +17,9 @@ from branch_gym.evaluation.benchmark import (
     benchmark,
     load_rows,
     save_rows,
-    training_seeds,
 )
 from branch_gym.evaluation.benchmark_page import benchmark_results, format_page
+from branch_gym.training.seeds import MAX_EVAL_TREES, eval_tree_seeds, train_seed_range
 from recon.metrics import BRANCH_CLASSES
 
 
@@ -41,16 +42,19 @@ def test_splits_are_held_out_from_training_and_do_not_overlap() -> None:
     for bench in BENCHMARKS.values():
         for stratum in bench.strata:
             for split in ("test", "validation"):
-                assert stratum.seeds(split)[0] >= HELD_OUT_SEED_START
-    assert training_seeds(10).stop <= HELD_OUT_SEED_START
-    with pytest.raises(ValueError, match="must lie in"):
-        training_seeds(10, HELD_OUT_SEED_START - 5)
+                first, count = stratum.seeds(split)
+                assert HELD_OUT_SEED_START <= first < first + count <= HELD_OUT_SEED_END
+    # Training's trees and its evaluation trees lie above every held-out seed.
+    assert min(eval_tree_seeds(MAX_EVAL_TREES)) >= HELD_OUT_SEED_END
+    assert train_seed_range(0).start >= HELD_OUT_SEED_END
     paper = benchmark("paper-v1")
     clash = Stratum("again", "paper", paper.strata[0].test_seeds, (400_000, 5))
     with pytest.raises(ValueError, match="overlap"):
         replace(paper, strata=(*paper.strata, clash))
     with pytest.raises(ValueError, match="held-out seeds"):
         replace(paper, strata=(Stratum("low", "paper", (5, 5), (400_000, 5)),))
+    with pytest.raises(ValueError, match="held-out seeds"):
+        replace(paper, strata=(Stratum("high", "paper", (HELD_OUT_SEED_END, 5), (400_000, 5)),))
     with pytest.raises(ValueError, match="unknown benchmark 'nope'"):
         benchmark("nope")
 

@@ -76,23 +76,42 @@ def test_noisy_tracks_stay_within_3mm() -> None:
     assert metrics.pb_residual_mean_m < 0.003
 
 
-def test_restart_after_three_inconsistent_masks() -> None:
+_MOVED = bezier_tube(  # PRIMARY 4 cm sideways: masks of it disagree with a model of PRIMARY
+    [[0.04, 0, 0], [0.05, 0.0, 0.33], [0.08, 0.02, 0.66], [0.09, 0.03, 1.0]], radius_m=0.005
+)
+
+
+def _model_then_moved_masks(hold_primary: bool) -> tuple[Modeler, list, float]:
+    """Model PRIMARY, then feed masks of the moved branch until a restart (or 4 cm of them)."""
     modeler = Modeler(AnalyticTracker(TUBES))
     _scan(modeler, TUBES, np.arange(0.30, 0.36, 0.001))
     assert modeler.model.primary is not None
-    # The branch "moves" 4 cm sideways: the masks disagree with the model from now on.
-    moved = bezier_tube(
-        [[0.04, 0, 0], [0.05, 0.0, 0.33], [0.08, 0.02, 0.66], [0.09, 0.03, 1.0]], radius_m=0.005
-    )
-    modeler.tracker = AnalyticTracker([moved])
+    modeler.hold_primary = hold_primary
+    modeler.tracker = AnalyticTracker([_MOVED])
     outcomes, h = [], 0.0
     for h in np.arange(0.361, 0.40, 0.001):
-        frame = synthetic_frames([moved], [camera_following(PRIMARY, h)], INTRINSICS)[0]
+        frame = synthetic_frames([_MOVED], [camera_following(PRIMARY, h)], INTRINSICS)[0]
         report = modeler.update(frame)
         if report is not None:
             outcomes.append(report.outcome)
         if report is not None and report.outcome is Outcome.RESTART:
             break
+    return modeler, outcomes, h
+
+
+def test_held_primary_is_never_restarted() -> None:
+    """While the robot orbits (hold_primary), disagreeing masks never replace the model."""
+    modeler, outcomes, _ = _model_then_moved_masks(hold_primary=True)
+    assert len(outcomes) >= 3
+    assert set(outcomes) == {Outcome.INCONSISTENT}
+    points = modeler.model.primary.points  # still on PRIMARY, 4 cm from the moved branch
+    x_primary = np.interp(points[:, 2], PRIMARY.points[:, 2], PRIMARY.points[:, 0])
+    assert np.all(np.abs(points[:, 0] - x_primary) < 0.003)
+
+
+def test_restart_after_three_inconsistent_masks() -> None:
+    modeler, outcomes, h = _model_then_moved_masks(hold_primary=False)
+    moved = _MOVED
     assert outcomes[:3] == [Outcome.INCONSISTENT, Outcome.INCONSISTENT, Outcome.RESTART]
     # After the restart the model in view (near the camera height) lies on the moved branch.
     points = modeler.model.primary.points

@@ -231,6 +231,13 @@ class BranchScanEnv(gym.Env):
       the price per episode (the reward's time term follows it), and the discrete id gains a
       hold action (``discrete_hold``). v0 ids are unchanged.
     - v2: the coverage memory gains the ``IN_FRONT`` channel (144 entries). v1 ids are unchanged.
+    - v3: the reward's spurious branch is one with nothing there (a reconstructed spur, stub,
+      neighbour's branch or wire is classed as such, not charged), and every side branch up to
+      the planned end height is in scope. v2 ids keep the paper's scoring.
+
+    The scan itself is the ``scan`` argument's (:class:`branch_gym.scan.ScanConfig`), not the
+    id's: since orchard-v2 its default holds the model through a rotation
+    (``orbit_holds_model``); ``ScanConfig(orbit_holds_model=False)`` scans as before.
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": RENDER_FPS}  # noqa: RUF012

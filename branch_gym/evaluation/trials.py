@@ -294,6 +294,7 @@ HASH_NEUTRAL_DEFAULTS = {
     "world.tree.alley_side_half_angle_deg": 70.0,
     "world.orchard.trellis_reach_m": None,
     "world.orchard.camera.jpeg": True,
+    "orbit_holds_model": False,  # orchard-v2's fix; off: the scans before it
 }
 
 
