@@ -16,6 +16,7 @@ from branch_gym import ENV_ID_V0, ENV_IDS
 from branch_gym.config_utils import check_keys, flatten_dict, is_number
 from branch_gym.env.config import env_config_from_kwargs
 from branch_gym.env.reward import RewardConfig
+from branch_gym.env.versions import env_version
 from branch_gym.sim.validation import (
     require_finite,
     require_int,
@@ -169,6 +170,18 @@ class TrainConfig:
         value_warmup_steps: Env steps at the start of the run during which only the value
             function learns (:class:`~branch_gym.training.callbacks.ValueWarmupCallback`): a
             policy from ``init_model`` comes without a trained critic. 0: off (our default).
+        privileged_critic: Train with a privileged critic (issue 63): the training envs'
+            observations gain the ground truth's ``privileged`` entry
+            (:class:`~branch_gym.training.privileged_state.PrivilegedStateWrapper`: scored side
+            branches matched, pending in view with their headings, passed, not yet seen, the
+            scan's progress) and the policy is
+            :class:`~branch_gym.training.privileged_critic.PrivilegedCriticPolicy`: the actor
+            reads the plain observation only, the critic that entry too. With ``init_model``
+            the actor starts as that model's policy and the critic as its critic (zero weights
+            on the privileged entry). The run's files hold the privileged model (resumable);
+            ``load_model`` and so ``ppo:PATH`` play them as the plain policy of the actor, and
+            the held-out evaluation plays the actor in the plain env. Needs a Dict-observation
+            env id and ``recurrent=False``; a resumed run cannot switch it. Our choice: off.
         ppo: PPO hyper-parameters.
     """
 
@@ -195,6 +208,7 @@ class TrainConfig:
     init_model: str | None = None
     init_logit_scale: float = 1.0
     value_warmup_steps: int = 0
+    privileged_critic: bool = False
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
     def __post_init__(self) -> None:
@@ -209,13 +223,26 @@ class TrainConfig:
             raise ValueError("TrainConfig.init_logit_scale applies to an init_model only")
         require_int(self, "eval_every", minimum=0)
         require_int(self, "eval_trees", minimum=1, maximum=MAX_EVAL_TREES)
-        for name in ("render_tracking_frames", "normalize", "recurrent", "worker_rollouts"):
+        for name in (
+            "render_tracking_frames",
+            "normalize",
+            "recurrent",
+            "worker_rollouts",
+            "privileged_critic",
+        ):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrainConfig.{name} must be a bool, got {getattr(self, name)!r}")
         if self.worker_rollouts and (self.normalize or self.recurrent):
             raise ValueError(
                 "TrainConfig.worker_rollouts works with plain PPO only: the workers act on raw "
                 "observations (normalize=False) without an LSTM state (recurrent=False)"
+            )
+        if self.privileged_critic and self.recurrent:
+            raise ValueError("TrainConfig.privileged_critic needs recurrent=False")
+        if self.privileged_critic and env_version(self.env_id).env_kwargs().get("flatten"):
+            raise ValueError(
+                "TrainConfig.privileged_critic needs an env id with Dict observations, "
+                f"not {self.env_id!r}"
             )
         if self.value_warmup_steps and self.recurrent:
             raise ValueError("TrainConfig.value_warmup_steps needs recurrent=False")

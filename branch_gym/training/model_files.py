@@ -7,7 +7,9 @@ recorded in the file. Every model records the env id it was trained on
 spaces on load; a file saved before ids were recorded gets the id of the registered env whose
 spaces are exactly its own (stable-baselines3's space check, no guessing). Training writes these
 files (:mod:`branch_gym.training.train`), :class:`PolicyAgent` plays one (held-out evaluation
-here, ``ppo:PATH`` specs in ``agents.ppo``).
+here, ``ppo:PATH`` specs in ``agents.ppo``). A model trained with a privileged critic
+(``TrainConfig.privileged_critic``) records the plain env's id; loaded to play, it is the plain
+PPO model of its actor (:func:`branch_gym.training.privileged_critic.actor_model`).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from branch_gym.env.config import EnvConfig
 from branch_gym.env.layout import flatten_observation
 from branch_gym.env.observation import observation_space
 from branch_gym.env.versions import ENV_VERSIONS, EnvVersion, env_version
+from branch_gym.training.privileged_state import without_privileged_space
 
 logger = logging.getLogger(__name__)
 
@@ -143,25 +146,27 @@ def model_env_id(model: Any, path: str | Path = "<memory>") -> str | None:
     """The env id of a loaded model: the recorded one, checked against its spaces.
 
     A model without a recorded id (an older file) gets the id whose spaces are its own, or None
-    when no registered env has them (a model of another environment).
+    when no registered env has them (a model of another environment). A privileged critic's
+    model is compared without the privileged entry of its observation.
 
     Raises:
         ModelFileError: an unknown recorded id, or spaces that are not that id's (named).
     """
     recorded = getattr(model, ENV_ID_ATTRIBUTE, None)
+    observation = without_privileged_space(model.observation_space)
     if recorded is None:
         try:
-            return env_id_of_spaces(model.observation_space, model.action_space)
+            return env_id_of_spaces(observation, model.action_space)
         except ValueError:
             return None
     try:
         expected = version_spaces(env_version(recorded))
     except ValueError as exc:
         raise ModelFileError(f"model file {path}: {exc}") from exc
-    if expected != (model.observation_space, model.action_space):
+    if expected != (observation, model.action_space):
         raise ModelFileError(
             f"model file {path} records env {recorded!r} but its spaces are not that env's "
-            f"({model.observation_space}, {model.action_space})"
+            f"({observation}, {model.action_space})"
         )
     return recorded
 
@@ -175,7 +180,9 @@ def load_model(
         path: The model's ``.zip`` file.
         env: Passed to ``load`` (training envs when resuming).
         algorithm: The class to load it as (a PPO subclass such as the trainer's
-            ``WorkerRolloutPPO``); None picks PPO or RecurrentPPO from the file.
+            ``WorkerRolloutPPO``), the model as saved (a run resumed); None picks PPO or
+            RecurrentPPO from the file, and a privileged critic's model becomes the plain PPO
+            model of its actor (to play, or to start another run from).
         **kwargs: More ``load`` arguments (e.g. ``tensorboard_log``).
 
     Returns:
@@ -190,6 +197,7 @@ def load_model(
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"model file {path} does not exist")
+    algorithm_given = algorithm is not None
     try:
         if algorithm is None:
             algorithm = algorithm_class(is_recurrent_file(path))
@@ -200,7 +208,11 @@ def load_model(
             f"RecurrentPPO model ({type(exc).__name__}: {exc})"
         ) from exc
     setattr(model, ENV_ID_ATTRIBUTE, model_env_id(model, path))  # the next save carries it
-    return model
+    if algorithm_given:
+        return model
+    from branch_gym.training.privileged_critic import actor_model
+
+    return actor_model(model)
 
 
 def load_normalizer(path: str | Path) -> Any:

@@ -3,7 +3,9 @@
 The algorithm is stable-baselines3's ``PPO``, or sb3-contrib's ``RecurrentPPO`` with an LSTM
 policy when ``TrainConfig.recurrent``, or PPO with rollouts collected in the env processes
 (:class:`~branch_gym.training.worker_rollouts.WorkerRolloutPPO`) when
-``TrainConfig.worker_rollouts``.
+``TrainConfig.worker_rollouts``. With ``TrainConfig.privileged_critic`` the training envs add the
+ground truth's privileged entry to the observation and the policy is
+:class:`~branch_gym.training.privileged_critic.PrivilegedCriticPolicy` (its critic reads it).
 
 :func:`train` is what ``train.py`` at the repository root calls. A run lives in one folder
 (:class:`branch_gym.training.paths.RunPaths`); ``resume=True`` continues it from its latest
@@ -52,6 +54,8 @@ from branch_gym.training.model_files import (
     load_normalizer,
 )
 from branch_gym.training.paths import TB_LOG_NAME, RunPaths
+from branch_gym.training.privileged_critic import PrivilegedCriticPolicy, is_privileged_policy
+from branch_gym.training.privileged_state import PrivilegedStateWrapper
 from branch_gym.training.seeds import eval_tree_seeds, train_seed_range
 from branch_gym.training.worker_rollouts import WorkerRolloutPPO
 
@@ -123,7 +127,9 @@ def train(
             normalizer = load_normalizer(paths.checkpoints / checkpoint.vecnormalize)
         best = checkpoint.best_mean_reward
     write_run_config(paths, config)
-    venv = make_train_env(config, normalizer)
+    venv = make_train_env(
+        config, normalizer, PrivilegedStateWrapper if config.privileged_critic else None
+    )
     eval_env = make_eval_env(config) if config.eval_every > 0 else None
     try:
         if model is None:
@@ -247,8 +253,11 @@ def new_model(
 ) -> Any:
     """A fresh PPO (or RecurrentPPO) model of the run's hyper-parameters on ``env``.
 
-    Its weights come from ``config.init_model`` when set, else a random initialisation with
-    ``first_action_logit_init`` applied.
+    Its weights come from ``config.init_model`` when set (its policy MLP widths too, e.g. a
+    calibrated student's extra unit), else a random initialisation with
+    ``first_action_logit_init`` applied. ``config.privileged_critic``: a
+    :class:`~branch_gym.training.privileged_critic.PrivilegedCriticPolicy` (``env`` must give
+    the privileged entry).
 
     Args:
         config: The run.
@@ -256,18 +265,28 @@ def new_model(
         tensorboard_log: TensorBoard folder, or None for no logs.
         find_model: ``config.init_model`` -> its file.
     """
+    init_path = None if config.init_model is None else find_model(config.init_model)
+    source = None if init_path is None else load_model(init_path)
+    kwargs = config.ppo.sb3_kwargs(env.observation_space)
+    if source is not None and "net_arch" in source.policy_kwargs:
+        kwargs["policy_kwargs"]["net_arch"] = source.policy_kwargs["net_arch"]
+    policy = (
+        PrivilegedCriticPolicy
+        if config.privileged_critic
+        else policy_class(env.observation_space, config.recurrent)
+    )
     model = training_algorithm(config)(
-        policy_class(env.observation_space, config.recurrent),
+        policy,
         env,
         seed=config.seed,
         device="cpu",
         tensorboard_log=tensorboard_log,
         verbose=0,
-        **config.ppo.sb3_kwargs(env.observation_space),
+        **kwargs,
     )
     setattr(model, ENV_ID_ATTRIBUTE, config.env_id)  # every save of the model records it
-    if config.init_model is not None:
-        load_policy_weights(model, find_model(config.init_model))
+    if init_path is not None:
+        load_policy_weights(model, init_path, source)
         scale_action_logits(model, config.init_logit_scale)
     else:
         apply_first_action_logit(model, config.ppo.first_action_logit_init)
@@ -281,25 +300,33 @@ def training_algorithm(config: TrainConfig) -> type:
     return algorithm_class(config.recurrent)
 
 
-def load_policy_weights(model: Any, path: str | Path) -> None:
+def load_policy_weights(model: Any, path: str | Path, source: Any = None) -> None:
     """Copy the policy (and value) weights of a saved PPO model into ``model``.
+
+    A :class:`~branch_gym.training.privileged_critic.PrivilegedCriticPolicy` takes them with
+    :meth:`~branch_gym.training.privileged_critic.PrivilegedCriticPolicy.load_plain_weights`
+    (the critic with zero weights on the privileged entry).
 
     Args:
         model: The new model.
         path: A model file.
+        source: ``load_model(path)`` if already loaded; None loads it.
 
     Raises:
         FileNotFoundError: no such file (named).
         ValueError: not a model file (``ModelFileError``), a model of another env id than
             ``model``'s, or a network that does not fit ``model``'s (named).
     """
-    source = load_model(path)
+    source = load_model(path) if source is None else source
     theirs, ours = getattr(source, ENV_ID_ATTRIBUTE), getattr(model, ENV_ID_ATTRIBUTE, None)
     if None not in (theirs, ours) and theirs != ours:
         raise ValueError(f"init model {path} was trained on {theirs}, the run's env is {ours}")
     try:
-        model.policy.load_state_dict(source.policy.state_dict())
-    except RuntimeError as exc:
+        if is_privileged_policy(model.policy):
+            model.policy.load_plain_weights(source.policy)
+        else:
+            model.policy.load_state_dict(source.policy.state_dict())
+    except (RuntimeError, ValueError) as exc:
         raise ValueError(f"init model {path} does not fit the run's network: {exc}") from exc
 
 
