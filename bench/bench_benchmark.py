@@ -1,8 +1,8 @@
-"""What one policy on ``orchard-v1``'s test split costs on this machine's 2 cores.
+"""What one policy on ``orchard-v2``'s test split costs on this machine's 2 cores.
 
 A timed sample: the paper's controller (the benchmark's reference policy) scans the first
 :data:`SAMPLE_TREES` test trees of each stratum from pixels, :data:`WORKERS` trials at once on the
-process pool (as ``eval.py --benchmark orchard-v1 --workers 2`` runs them). The figures:
+process pool (as ``eval.py --benchmark orchard-v2 --workers 2`` runs them). The figures:
 
 - ``benchmark_trial_s``: the sample's wall time per trial on 2 workers (s);
 - ``benchmark_policy_minutes_2cores``: that times the split's trees, in minutes (issue 60: at
@@ -20,7 +20,7 @@ from branch_gym.evaluation.benchmark import benchmark
 from branch_gym.evaluation.config import EvalConfig
 from branch_gym.evaluation.runner import run_trials
 
-BENCHMARK = "orchard-v1"
+BENCHMARK = "orchard-v2"
 SAMPLE_TREES = 4  # per stratum: two rounds of the two workers
 WORKERS = 2  # the machine's cores
 

@@ -16,6 +16,7 @@ from branch_gym.evaluation.benchmark import (
     TrialRow,
     benchmark,
     load_rows,
+    outcome_from_rows,
     save_rows,
 )
 from branch_gym.evaluation.benchmark_page import benchmark_results, format_page
@@ -120,6 +121,29 @@ def test_rows_are_the_record_a_later_session_resumes_from(tmp_path) -> None:
     )
     with pytest.raises(ValueError, match="line 5: not a trial row"):
         load_rows(tmp_path, paper)
+
+
+def test_a_page_from_rows_compares_the_first_trees_every_policy_has(tmp_path, capsys) -> None:
+    from agents.commands import evaluate
+
+    paper = benchmark("paper-v1")
+    references = ("none", "periodic:22.5:1.5", "privileged")
+    # The references on trees 0-4, the extra policy on 0-2 and 4 (a run in progress): 3 trees.
+    rows = [_row(p, 100_000 + k, 4, k % 2, 20.0) for p in references for k in range(5)]
+    rows += [_row("ftl:22.5:1", 100_000 + k, 4, 1, 30.0) for k in (0, 1, 2, 4)]
+    save_rows(tmp_path, paper, rows)
+    outcome, trees = outcome_from_rows(paper, ["ftl:22.5:1"], "test", tmp_path)
+    assert trees == 3
+    assert {(r.policy, r.seed - 100_000) for r in outcome.rows} == {
+        (p, k) for p in (*references, "ftl:22.5:1") for k in range(3)
+    }
+    assert evaluate(["--benchmark", "paper-v1", "--from-rows", "--out", str(tmp_path),
+                     "--policies", "ftl:22.5:1"]) == 0  # fmt: skip
+    page = (tmp_path / "benchmark.md").read_text()
+    assert "**Partial**: the first 3 trees" in page and "--from-rows" in page
+    assert load_rows(tmp_path, paper) == {(r.stratum, r.policy, r.seed): r for r in rows}
+    with pytest.raises(ValueError, match="no tree of the test split with a row of every policy"):
+        outcome_from_rows(paper, ["disagreement"], "test", tmp_path)
 
 
 @pytest.mark.slow

@@ -235,3 +235,12 @@ def test_a_fine_tuned_model_plays_as_a_ppo_spec_on_the_plain_observation(tmp_pat
         env.step(action)
     finally:
         env.close()
+
+
+def test_the_command_line_switches_it_on() -> None:
+    from branch_gym.training.cli import build_parser, config_from_args
+
+    parser = build_parser()
+    on = config_from_args(parser.parse_args(["--out", "run", "--privileged-critic"]))
+    off = config_from_args(parser.parse_args(["--out", "run"]))
+    assert on.privileged_critic and not off.privileged_critic

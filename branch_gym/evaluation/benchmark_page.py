@@ -133,7 +133,8 @@ def format_page(results: dict, command: str) -> str:
     if "trees_limit" in results:
         lines += [
             f"**Partial**: the first {results['trees_limit']} trees of each stratum's split only "
-            "(`--trees`); the same command without it runs the rest.",
+            "(`--trees`, or the rows so far with `--from-rows`); the same command without it "
+            "runs the rest.",
             "",
         ]
     lines += [

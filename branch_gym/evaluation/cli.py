@@ -20,7 +20,7 @@ re-run. OUT then holds summary.json, table.md, trials.csv, missed_vs_scan_time.p
 tree_SEED.png per plotted tree. See branch_gym/evaluation/ for the definitions. ``--record DIR``
 writes each trial run as a scan folder that ``python -m recon.replay`` reads (docs/replay.md).
 
-``--benchmark NAME`` evaluates the policies on a named, versioned benchmark (``orchard-v1``,
+``--benchmark NAME`` evaluates the policies on a named, versioned benchmark (``orchard-v2``,
 ``paper-v1``: :mod:`branch_gym.evaluation.benchmark`) instead: its world, trees, segmenter,
 tracker and scan limits, on ``--split test`` (default) or ``validation``, with its reference
 policies added; OUT then also holds ``benchmark.md`` (the results page: missed %, precision, scan
@@ -45,7 +45,13 @@ from pathlib import Path
 from tqdm import tqdm
 
 from branch_gym.cli_options import add_scan_options, scan_config
-from branch_gym.evaluation.benchmark import BENCHMARKS, SPLITS, benchmark, run_benchmark
+from branch_gym.evaluation.benchmark import (
+    BENCHMARKS,
+    SPLITS,
+    benchmark,
+    outcome_from_rows,
+    run_benchmark,
+)
 from branch_gym.evaluation.benchmark_page import benchmark_results, write_benchmark_page
 from branch_gym.evaluation.config import EvalConfig, TrialError
 from branch_gym.evaluation.pipeline import run_evaluation
@@ -101,6 +107,12 @@ def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
     parser.add_argument(
         "--split", choices=SPLITS, default="test", help="the benchmark's split (default test)"
     )
+    parser.add_argument(
+        "--from-rows",
+        action="store_true",
+        help="with --benchmark: write the results page from OUT/rows.jsonl, running nothing (the "
+        "first trees every policy has a row for: a run in progress, or committed rows)",
+    )
     add_backend_arguments(parser, 1, "trials run at once: worker processes, or Ray tasks in flight")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     add_scan_options(parser, defaults={"world": "clean", "tree": "paper"})
@@ -150,6 +162,8 @@ def main(
         if args.trees is not None and args.trees < 1:
             parser.error(f"--trees must be >= 1, got {args.trees}")
         return _run_benchmark(args, argv, factory)
+    if args.from_rows:
+        parser.error("--from-rows reads a benchmark's rows: it needs --benchmark")
     try:
         scan = scan_config(args)
         config = EvalConfig(
@@ -189,18 +203,29 @@ def main(
 def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFactory) -> int:
     """``--benchmark``: run (or resume) the split, write the results page, print it."""
     bench = benchmark(args.benchmark)
-    if not _backend_ready(args.backend):
-        return EXIT_USAGE
-    progress = _Progress()
-    try:
-        outcome = run_benchmark(
-            bench, args.policies, args.split, args.out, factory, args.workers, args.backend,
-            args.address, args.trees, progress.start, progress.done,
-        )  # fmt: skip
-    except (ConfigMismatchError, ValueError, ConnectionError, TrialError, KeyboardInterrupt) as exc:
-        return _failed(exc, args.out, progress)
-    finally:
-        progress.close()
+    if args.from_rows:
+        try:
+            outcome, trees = outcome_from_rows(bench, args.policies, args.split, args.out)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        if trees < min(stratum.seeds(args.split)[1] for stratum in bench.strata):
+            args.trees = trees
+    else:
+        if not _backend_ready(args.backend):
+            return EXIT_USAGE
+        progress = _Progress()
+        try:
+            outcome = run_benchmark(
+                bench, args.policies, args.split, args.out, factory, args.workers, args.backend,
+                args.address, args.trees, progress.start, progress.done,
+            )  # fmt: skip
+        except (
+            ConfigMismatchError, ValueError, ConnectionError, TrialError, KeyboardInterrupt
+        ) as exc:  # fmt: skip
+            return _failed(exc, args.out, progress)
+        finally:
+            progress.close()
     results = benchmark_results(outcome)
     if args.trees is not None:
         results["trees_limit"] = args.trees

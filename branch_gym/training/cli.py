@@ -98,6 +98,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--time-penalty", type=float, metavar="PER_S", help="reward per second of scan time"
     )
     parser.add_argument(
+        "--privileged-critic",
+        action="store_true",
+        help="the critic also reads the ground truth (unseen branches, progress); the actor "
+        "only the observation (TrainConfig.privileged_critic)",
+    )
+    parser.add_argument(
         "--target-kl", type=float, help="PPO: stop an update's epochs past this KL divergence"
     )
     parser.add_argument(
@@ -143,6 +149,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "normalize": args.normalize or None,
         "recurrent": args.recurrent or None,
         "worker_rollouts": args.worker_rollouts or None,
+        "privileged_critic": args.privileged_critic or None,
         "render_tracking_frames": False if args.pose_only_tracking_frames else None,
     }
     return load_config(TrainConfig, args.config, {"ppo": ppo, **run})
