@@ -132,8 +132,7 @@ class PrivilegedAgent(BaselineAgent):
             points = np.asarray(branch.points, float)
             if j in matched or abs(points[0, 2] - session.camera_height_m) > half_band_m:
                 continue
-            direction = points[-1] - points[0]
-            headings.append(math.atan2(-direction[0], direction[1]))
+            headings.append(branch_heading_rad(points))
         return np.array(headings)
 
     def _angles_deg(
@@ -142,6 +141,16 @@ class PrivilegedAgent(BaselineAgent):
         if len(vectors) != 1:
             raise ValueError("the privileged policy acts in a single env, not a batch")
         return np.array([self.target_angle_deg()]), state
+
+
+def branch_heading_rad(points: np.ndarray) -> float:
+    """Horizontal heading of a side branch, base to tip (rad, 0 along +y, positive toward -x).
+
+    Args:
+        points: (N, 3) its centerline in metres, world frame, base first.
+    """
+    direction = points[-1] - points[0]
+    return math.atan2(-direction[0], direction[1])
 
 
 def parse_privileged_spec(spec: str) -> PrivilegedConfig | None:

@@ -54,7 +54,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from branch_gym.privileged import PrivilegedConfig
+from branch_gym.privileged import PrivilegedConfig, branch_heading_rad
 from branch_gym.scoring import scan_metrics_config
 from branch_gym.sim.validation import require_int, require_positive
 
@@ -171,8 +171,7 @@ def privileged_state(
             counts[PrivilegedField.UNSEEN_AHEAD] += 1
         else:
             counts[PrivilegedField.PENDING_IN_VIEW] += 1
-            direction = points[-1] - points[0]
-            relative = math.atan2(-direction[0], direction[1]) - rotation_rad
+            relative = branch_heading_rad(points) - rotation_rad
             folded = abs(math.remainder(relative, math.pi))  # branch line vs optical axis
             pending.append((folded, relative, (base_m - camera_m) / fov_m))
     for field, count in counts.items():
