@@ -141,6 +141,8 @@ def test_a_page_from_rows_compares_the_first_trees_every_policy_has(tmp_path, ca
                      "--policies", "ftl:22.5:1"]) == 0  # fmt: skip
     page = (tmp_path / "benchmark.md").read_text()
     assert "**Partial**: the first 3 trees" in page and "--from-rows" in page
+    assert "![missed against scan time](missed_vs_scan_time.png)" in page
+    assert (tmp_path / "missed_vs_scan_time.png").stat().st_size > 0
     assert load_rows(tmp_path, paper) == {(r.stratum, r.policy, r.seed): r for r in rows}
     with pytest.raises(ValueError, match="no tree of the test split with a row of every policy"):
         outcome_from_rows(paper, ["disagreement"], "test", tmp_path)

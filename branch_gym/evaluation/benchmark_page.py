@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from branch_gym.evaluation.benchmark import BenchmarkOutcome, TrialRow
+from branch_gym.evaluation.plots import plot_missed_vs_scan_time
 from branch_gym.evaluation.power import PairedSample, predicted_half_width, trees_for_half_width
 from branch_gym.evaluation.statistics import (
     PERCENT,
@@ -29,10 +30,12 @@ from branch_gym.evaluation.statistics import (
     paired_comparison,
 )
 from branch_gym.files import write_json_atomic
+from branch_gym.policy import PolicyFactory
 from recon.metrics import BRANCH_CLASSES, NOT_PRECISE, SURROUNDING_KINDS
 
 PAGE = "benchmark.md"
 RESULTS = "benchmark.json"
+FRONT = "missed_vs_scan_time.png"
 TARGET_HALF_WIDTH_PCT = 1.0  # issue 60: the interval of a policy near the paper's, +-1 point
 
 
@@ -102,16 +105,40 @@ def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
     }
 
 
-def write_benchmark_page(out: Path, results: dict, command: str) -> list[Path]:
-    """Write ``OUT/benchmark.json`` and ``OUT/benchmark.md``; returns their paths."""
+def write_benchmark_page(
+    out: Path, results: dict, command: str, factory: PolicyFactory | None = None
+) -> list[Path]:
+    """Write ``OUT/benchmark.json``, ``OUT/benchmark.md`` and, given the factory that reads the
+    specs, the front (``OUT/missed_vs_scan_time.png``, linked from the page); returns their
+    paths."""
     out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(out / RESULTS, results)
-    (out / PAGE).write_text(format_page(results, command))
-    return [out / RESULTS, out / PAGE]
+    paths = [out / RESULTS, out / PAGE]
+    if factory is not None:
+        paths.append(out / FRONT)
+        plot_missed_vs_scan_time(_as_summary(results), paths[-1], factory)
+    (out / PAGE).write_text(format_page(results, command, front=factory is not None))
+    return paths
 
 
-def format_page(results: dict, command: str) -> str:
-    """The results page: the command, the table, the headroom and the power."""
+def _as_summary(results: dict) -> dict:
+    """The per-policy points in the form :func:`plot_missed_vs_scan_time` reads."""
+    return {
+        "policies": {
+            policy: {
+                "scan_time_s": {"mean": row["scan_time_s"], "std": None},
+                "scan_time_s_ci": row["scan_time_s_ci"],
+                "missed_pct": row["missed_pct"],
+                "missed_pct_ci": row["missed_pct_ci"],
+            }
+            for policy, row in results["policies"].items()
+        }
+    }
+
+
+def format_page(results: dict, command: str, front: bool = False) -> str:
+    """The results page: the command, the table, the headroom and the power (and the front
+    figure's link when ``front``)."""
     rows = results["policies"]
     trees = sum(results["strata"].values())
     n_gt = next(iter(rows.values()))["n_gt"]
@@ -156,6 +183,16 @@ def format_page(results: dict, command: str) -> str:
         f"Headroom (`{results['baseline_policy']}` minus `{bound}`): "
         f"{_diff(headroom)} points of missed %.",
         "",
+        *(
+            [
+                f"![missed against scan time]({FRONT}) Missed % against scan time, 95 % "
+                "intervals over trees: fixed schedules circles, learned policies squares on "
+                "their front, the bound a star.",
+                "",
+            ]
+            if front
+            else []
+        ),
         "Power: the half-width of each policy's interval against the paper's controller on these "
         "trees, and the trees that +-1 point would take (delta method on the paired per-tree "
         "differences, `branch_gym/evaluation/power.py`):",

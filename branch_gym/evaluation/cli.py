@@ -230,7 +230,7 @@ def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFac
     if args.trees is not None:
         results["trees_limit"] = args.trees
     command = "python eval.py " + shlex.join(argv)
-    files = write_benchmark_page(args.out, results, command)
+    files = write_benchmark_page(args.out, results, command, factory)
     print(f"\n{len(outcome.computed)} trials run\n")
     print(files[1].read_text())
     print("wrote " + ", ".join(str(path) for path in files))
