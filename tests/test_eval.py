@@ -620,14 +620,21 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
 
 def test_the_clean_and_orchard_evaluations_keep_their_hashes() -> None:
     """Fields added to the scan since (the tree's alley face, the orchard camera's JPEG switch)
-    hash as absent at their defaults: the trials that ``eval.py`` saved for the clean world and
-    for the orchard from pixels (hashes as written by the code of December 2026) stay valid."""
-    clean = ScanConfig(world=WorldConfig.preset("clean"))
-    orchard = ScanConfig(world=WorldConfig.preset("orchard"), segmenter="learned")
-    hashes = [
-        EvalConfig(("none",), 1, scan=s, policy_factory=AGENTS).scan_hash for s in (clean, orchard)
-    ]
-    assert hashes == ["0b7c0f4524858f99", "a95befb214ab854a"]
+    hash as absent at their earlier values: the trials that ``eval.py`` saved for the clean world
+    and for the orchard from pixels (hashes as written by the code of December 2026) stay valid
+    for the scans that ran them (``orbit_holds_model=False``). The orbit hold, on by default,
+    changes rotating scans: its trials hash apart and are never mixed with those."""
+    clean = ScanConfig(world=WorldConfig.preset("clean"), orbit_holds_model=False)
+    orchard = ScanConfig(
+        world=WorldConfig.preset("orchard"), segmenter="learned", orbit_holds_model=False
+    )
+
+    def scan_hash(scan: ScanConfig) -> str:
+        return EvalConfig(("none",), 1, scan=scan, policy_factory=AGENTS).scan_hash
+
+    assert [scan_hash(clean), scan_hash(orchard)] == ["0b7c0f4524858f99", "a95befb214ab854a"]
+    for before in (clean, orchard):
+        assert scan_hash(before.replace(orbit_holds_model=True)) != scan_hash(before)
 
 
 @pytest.mark.parametrize(
