@@ -88,7 +88,7 @@ def test_the_results_page_pairs_every_policy_with_the_references() -> None:
     assert results["headroom"]["missed_pct_diff"] == pytest.approx(20.0)
     assert "vs_reference" not in results["policies"]["periodic:22.5:1.5"]
     page = format_page(results, "python eval.py --benchmark paper-v1 ...")
-    assert "| `none` | 20.0 [20.0, 20.0] | +10.0 [10.0, 10.0] | +20.0 [20.0, 20.0] |" in page
+    assert "| `none` | 40 | 20.0 [20.0, 20.0] | +10.0 [10.0, 10.0] | +20.0 [20.0, 20.0] |" in page
     assert "Headroom (`none` minus `privileged`): +20.0" in page
 
 
@@ -123,29 +123,70 @@ def test_rows_are_the_record_a_later_session_resumes_from(tmp_path) -> None:
         load_rows(tmp_path, paper)
 
 
-def test_a_page_from_rows_compares_the_first_trees_every_policy_has(tmp_path, capsys) -> None:
+def test_a_page_from_rows_pairs_each_policy_on_the_trees_it_shares(tmp_path, capsys) -> None:
     from agents.commands import evaluate
 
     paper = benchmark("paper-v1")
     references = ("none", "periodic:22.5:1.5", "privileged")
-    # The references on trees 0-4, the extra policy on 0-2 and 4 (a run in progress): 3 trees.
+    # The references on trees 0-4, the extra policy on 0-2 and 4 (a run in progress): its first 3.
     rows = [_row(p, 100_000 + k, 4, k % 2, 20.0) for p in references for k in range(5)]
     rows += [_row("ftl:22.5:1", 100_000 + k, 4, 1, 30.0) for k in (0, 1, 2, 4)]
     save_rows(tmp_path, paper, rows)
-    outcome, trees = outcome_from_rows(paper, ["ftl:22.5:1"], "test", tmp_path)
-    assert trees == 3
+    outcome = outcome_from_rows(paper, ["ftl:22.5:1"], "test", tmp_path)
     assert {(r.policy, r.seed - 100_000) for r in outcome.rows} == {
-        (p, k) for p in (*references, "ftl:22.5:1") for k in range(3)
-    }
+        (p, k) for p in references for k in range(5)
+    } | {("ftl:22.5:1", k) for k in range(3)}
+    results = benchmark_results(outcome)
+    assert results["policies"]["none"]["trees"] == 5
+    ftl = results["policies"]["ftl:22.5:1"]
+    assert ftl["trees"] == 3
+    # Paired on trees 0-2: ftl misses 3 of 12, the paper's 1 (tree 1): +16.7 points.
+    assert ftl["vs_reference"]["missed_pct_diff"] == pytest.approx(100 * 2 / 12)
+    limited = outcome_from_rows(paper, ["ftl:22.5:1"], "test", tmp_path, trees=2)
+    assert {r.seed - 100_000 for r in limited.rows} == {0, 1}
     assert evaluate(["--benchmark", "paper-v1", "--from-rows", "--out", str(tmp_path),
                      "--policies", "ftl:22.5:1"]) == 0  # fmt: skip
     page = (tmp_path / "benchmark.md").read_text()
-    assert "**Partial**: the first 3 trees" in page and "--from-rows" in page
+    assert "**Partial**: a policy with fewer than the split's" in page and "--from-rows" in page
+    assert "| `ftl:22.5:1` | 3 |" in page
     assert "![missed against scan time](missed_vs_scan_time.png)" in page
     assert (tmp_path / "missed_vs_scan_time.png").stat().st_size > 0
     assert load_rows(tmp_path, paper) == {(r.stratum, r.policy, r.seed): r for r in rows}
-    with pytest.raises(ValueError, match="no tree of the test split with a row of every policy"):
+    with pytest.raises(ValueError, match="no row of disagreement on the first tree"):
         outcome_from_rows(paper, ["disagreement"], "test", tmp_path)
+
+
+def test_claims_pair_learned_policies_with_each_fixed_schedule() -> None:
+    """A student that misses less in less time beats a schedule; one at 0.7x the time of another
+    and +0 points beats it as cheaper; the cheap end's share of no rotation's misses."""
+    bench = benchmark("paper-v1")
+    seeds = range(100_000, 100_040)
+    spec = {  # policy: (missed a tree of 10, scan time s)
+        "none": (4, 20.0),
+        "periodic:22.5:1.5": (1, 35.0),
+        "privileged": (0, 25.0),
+        "periodic:45:2.5": (2, 70.0),
+        "ftl:45:1": (2, 40.0),
+        "ftl:22.5:1": (0, 30.0),
+        "ppo:student@25": (2, 25.0),
+        "ppo:student@100": (1, 50.0),
+    }
+    rows = [_row(p, s, 10, m, t) for p, (m, t) in spec.items() for s in seeds]
+    results = benchmark_results(BenchmarkOutcome(bench, "test", rows), seed=0)
+    claims = {c["fixed"]: c for c in results["claims"]["fixed_schedules"]}
+    assert set(claims) == {"periodic:22.5:1.5", "periodic:45:2.5", "ftl:45:1", "ftl:22.5:1"}
+    assert claims["periodic:45:2.5"]["verdict"] == "faster_fewer"  # @100: 1 < 2 in 50 < 70 s
+    assert claims["periodic:45:2.5"]["learned"] == "ppo:student@100"
+    assert claims["ftl:45:1"]["verdict"] == "cheaper"  # @25: 2 = 2 in 25 <= 0.8 x 40 s
+    assert claims["ftl:22.5:1"]["verdict"] == ""  # nobody misses less than 0 in 30 s
+    assert claims["ftl:22.5:1"]["learned"] == "ppo:student@25"  # the one within its time
+    assert claims["periodic:22.5:1.5"]["comparison"]["missed_pct_diff"] == pytest.approx(10.0)
+    (cheap,) = results["claims"]["cheap_end"]  # @25 at 1.25x none's time; @100 at 2.5x
+    assert cheap["learned"] == "ppo:student@25"
+    assert cheap["fewer"] == pytest.approx(0.5) and cheap["meets"]
+    page = format_page(results, "python eval.py --benchmark paper-v1 ...")
+    assert "| `periodic:45:2.5` | 20.0 / 70.0 | `ppo:student@100` | 0.71 |" in page
+    assert "- `ppo:student@25` at 1.25x: 50 % [50, 50] fewer misses (meets 25 %)" in page
 
 
 @pytest.mark.slow

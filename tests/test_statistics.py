@@ -47,8 +47,21 @@ def test_a_consistent_win_is_significant_and_a_tie_is_not() -> None:
     assert win["missed_pct_diff"] == pytest.approx(-100.0 / 3)
     assert win["missed_pct_diff_ci"][1] < 0.0 and win["sign_test_p"] < 0.001
     assert win["scan_time_s_diff"] == pytest.approx(10.0)
+    assert win["missed_ratio"] == 0.0 and win["missed_ratio_ci"] == [0.0, 0.0]
     tie = paired_comparison(worse, worse, rng)
     assert tie["ties"] == 12 and tie["sign_test_p"] == 1.0 and tie["missed_pct_diff"] == 0.0
+    assert tie["missed_ratio"] == 1.0 and tie["missed_ratio_ci"] == [1.0, 1.0]
+    assert paired_comparison(worse, better, rng)["missed_ratio"] is None  # b missed none
+
+
+def test_the_ratio_of_misses_carries_its_interval() -> None:
+    """Half the misses on every other tree: ratio 0.5, an interval around it from resampling."""
+    a = _trials([1, 0] * 20)
+    b = _trials([1, 1] * 20)
+    comparison = paired_comparison(a, b, np.random.default_rng(3))
+    assert comparison["missed_ratio"] == pytest.approx(0.5)
+    low, high = comparison["missed_ratio_ci"]
+    assert 0.3 < low < 0.5 < high < 0.7
 
 
 def test_different_trees_are_refused() -> None:

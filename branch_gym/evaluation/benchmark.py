@@ -480,38 +480,34 @@ def run_benchmark(
 
 
 def outcome_from_rows(
-    bench: Benchmark, policies: Sequence[str], split: str, out: Path
-) -> tuple[BenchmarkOutcome, int]:
+    bench: Benchmark, policies: Sequence[str], split: str, out: Path, trees: int | None = None
+) -> BenchmarkOutcome:
     """The trials ``OUT/rows.jsonl`` holds, running none (a run in progress, or committed rows).
 
-    Takes each stratum's first trees of the split that every policy (with the references) has
-    a row for, so that the policies compare on the same trees.
-
-    Returns:
-        (the outcome, the fewest trees a stratum has).
+    Takes, per policy (the references added), each stratum's first trees of the split (at most
+    ``trees``) up to the first it has no row for: a run in progress has more trees of the
+    policies it ran before. The results page pairs two policies on the trees both have.
 
     Raises:
-        ValueError: rows of another definition; no tree with a row of every policy.
+        ValueError: rows of another definition; a policy without a row of a stratum's first tree.
     """
     policies = bench.policies_with_references(policies)
     rows = load_rows(out, bench)
     outcome = BenchmarkOutcome(bench, split, [])
-    fewest = None
     for stratum in bench.strata:
         first, count = stratum.seeds(split)
-        trees = 0
-        while trees < count and all((stratum.name, p, first + trees) in rows for p in policies):
-            trees += 1
-        fewest = trees if fewest is None else min(fewest, trees)
-        outcome.rows += [
-            rows[stratum.name, policy, first + i] for policy in policies for i in range(trees)
-        ]
-    if not fewest:
-        raise ValueError(
-            f"{out / ROWS_FILE} holds no tree of the {split} split with a row of every policy "
-            f"({', '.join(policies)})"
-        )
-    return outcome, fewest
+        count = count if trees is None else min(count, trees)
+        for policy in policies:
+            have = 0
+            while have < count and (stratum.name, policy, first + have) in rows:
+                have += 1
+            if not have:
+                raise ValueError(
+                    f"{out / ROWS_FILE} holds no row of {policy} on the first tree of the {split} "
+                    f"split of {stratum.name} (seed {first})"
+                )
+            outcome.rows += [rows[stratum.name, policy, first + i] for i in range(have)]
+    return outcome
 
 
 class _RowScorer:

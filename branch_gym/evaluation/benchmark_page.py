@@ -21,6 +21,12 @@ from pathlib import Path
 import numpy as np
 
 from branch_gym.evaluation.benchmark import BenchmarkOutcome, TrialRow
+from branch_gym.evaluation.claims import (
+    ClaimRules,
+    cheap_end_claims,
+    fixed_schedule_claims,
+    on_common_trees,
+)
 from branch_gym.evaluation.plots import plot_missed_vs_scan_time
 from branch_gym.evaluation.power import PairedSample, predicted_half_width, trees_for_half_width
 from branch_gym.evaluation.statistics import (
@@ -83,12 +89,12 @@ def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
             if policy == (bench.reference_policy if name == "reference" else bench.bound_policy):
                 continue
             rng = np.random.default_rng(seed)
-            row[f"vs_{name}"] = paired_comparison(records, other, rng)
+            row[f"vs_{name}"] = paired_comparison(*on_common_trees(records, other), rng)
         if policy != bench.reference_policy:
-            row["power"] = _power(records, reference)
+            row["power"] = _power(*on_common_trees(records, reference))
         rows[policy] = row
     headroom = paired_comparison(
-        by_policy[bench.baseline_policy], bound, np.random.default_rng(seed)
+        *on_common_trees(by_policy[bench.baseline_policy], bound), np.random.default_rng(seed)
     )
     return {
         "benchmark": bench.name,
@@ -99,8 +105,13 @@ def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
         "reference_policy": bench.reference_policy,
         "bound_policy": bench.bound_policy,
         "baseline_policy": bench.baseline_policy,
+        "split_trees": sum(stratum.seeds(outcome.split)[1] for stratum in bench.strata),
         "policies": rows,
         "headroom": headroom,
+        "claims": {
+            "fixed_schedules": fixed_schedule_claims(by_policy, seed),
+            "cheap_end": cheap_end_claims(by_policy, bench.baseline_policy, seed),
+        },
         "bootstrap": {"resamples": BootstrapConfig().resamples, "seed": seed},
     }
 
@@ -140,9 +151,9 @@ def format_page(results: dict, command: str, front: bool = False) -> str:
     """The results page: the command, the table, the headroom and the power (and the front
     figure's link when ``front``)."""
     rows = results["policies"]
-    trees = sum(results["strata"].values())
-    n_gt = next(iter(rows.values()))["n_gt"]
     reference, bound = results["reference_policy"], results["bound_policy"]
+    trees, n_gt = rows[reference]["trees"], rows[reference]["n_gt"]
+    split_trees = results.get("split_trees", trees)
     lines = [
         f"# `{results['benchmark']}`, {results['split']} split",
         "",
@@ -150,28 +161,36 @@ def format_page(results: dict, command: str, front: bool = False) -> str:
         command,
         "```",
         "",
-        f"Definition digest `{results['digest']}`; {trees} trees "
-        f"({', '.join(f'{k} {v}' for k, v in results['strata'].items())}), {n_gt} side branches "
-        f"in scope. Cost = missed branches + scan time / {results['branch_value_s']:g} s, per "
-        "tree. Intervals: 95 %, bootstrap over trees; differences paired on the same trees "
+        f"Definition digest `{results['digest']}`; {trees} trees of the paper's controller "
+        f"({', '.join(f'{k} {v}' for k, v in results['strata'].items())} in all), {n_gt} side "
+        f"branches in scope on them. Cost = missed branches + scan time / "
+        f"{results['branch_value_s']:g} s, per tree. Intervals: 95 %, bootstrap over trees; "
+        "differences paired on the trees both policies have "
         f"(policy minus `{reference}`, the paper's controller, and minus `{bound}`).",
         "",
     ]
     if "trees_limit" in results:
         lines += [
             f"**Partial**: the first {results['trees_limit']} trees of each stratum's split only "
-            "(`--trees`, or the rows so far with `--from-rows`); the same command without it "
-            "runs the rest.",
+            "(`--trees`); the same command without it runs the rest.",
+            "",
+        ]
+    elif any(row["trees"] < split_trees for row in rows.values()):
+        lines += [
+            f"**Partial**: a policy with fewer than the split's {split_trees} trees has its first "
+            "trees only (the rows so far, `--from-rows`); each difference pairs the trees both "
+            "policies have. The command without `--from-rows` runs the rest.",
             "",
         ]
     lines += [
-        "| policy | missed % [95 %] | vs paper's [95 %] | vs bound [95 %] | precision % | "
+        "| policy | trees | missed % [95 %] | vs paper's [95 %] | vs bound [95 %] | precision % | "
         "spurious % (paper's) | scan time s | failures | cost |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for policy, row in rows.items():
         lines.append(
-            f"| `{policy}` | {_pct(row['missed_pct'])} {_ci(row['missed_pct_ci'])} | "
+            f"| `{policy}` | {row['trees']} | {_pct(row['missed_pct'])} "
+            f"{_ci(row['missed_pct_ci'])} | "
             f"{_diff(row.get('vs_reference'))} | {_diff(row.get('vs_bound'))} | "
             f"{_pct(row['precision_pct'])} | {_pct(row['spurious_pct'])} "
             f"({_pct(row['spurious_paper_pct'])}) | {row['scan_time_s']:.1f} | "
@@ -193,6 +212,7 @@ def format_page(results: dict, command: str, front: bool = False) -> str:
             if front
             else []
         ),
+        *_claims_lines(results),
         "Power: the half-width of each policy's interval against the paper's controller on these "
         "trees, and the trees that +-1 point would take (delta method on the paired per-tree "
         "differences, `branch_gym/evaluation/power.py`):",
@@ -217,6 +237,60 @@ def format_page(results: dict, command: str, front: bool = False) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _claims_lines(results: dict) -> list[str]:
+    """The claims section: each fixed schedule against the learned policies, the cheap end."""
+    claims = results.get("claims", {})
+    fixed = [c for c in claims.get("fixed_schedules", []) if c["learned"] is not None]
+    if not fixed:
+        return []
+    rows, rules = results["policies"], ClaimRules()
+    cheaper = f"<= {rules.cheaper_time_factor:g}x its time, <= +{rules.cheaper_slack_points:g}"
+    verdicts = {"faster_fewer": "**yes**: in its time, fewer", "cheaper": f"**yes**: {cheaper}"}
+    lines = [
+        "Learned policies against each fixed schedule (`branch_gym/evaluation/claims.py`): the "
+        "learned policy that beats it, else the closest; the difference in missed % (learned "
+        "minus fixed) paired on the trees both have. Beats: at most its scan time, fewer misses "
+        f"and the interval's upper end <= 0, or at most {rules.cheaper_time_factor:g}x its time "
+        f"and the upper end <= +{rules.cheaper_slack_points:g} point.",
+        "",
+        "| fixed schedule | missed % / scan time s | learned policy | time ratio | "
+        "missed % difference [95 %] | trees | beats |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for claim in fixed:
+        comparison, schedule = claim["comparison"], rows[claim["fixed"]]
+        lines.append(
+            f"| `{claim['fixed']}` | {_pct(schedule['missed_pct'])} / "
+            f"{schedule['scan_time_s']:.1f} | `{claim['learned']}` | "
+            f"{comparison['time_ratio']:.2f} | {_diff(comparison)} | {comparison['trees']} | "
+            f"{verdicts.get(claim['verdict'], 'no')} |"
+        )
+    lines.append("")
+    cheap = claims.get("cheap_end", [])
+    baseline = results["baseline_policy"]
+    budget, goal = f"{rules.cheap_end_time_factor:g}x", f"{100 * rules.cheap_end_fewer:.0f} %"
+    if cheap:
+        lines += [
+            f"Within {budget} the scan time of `{baseline}`, the share of its misses a learned "
+            f"policy avoids (1 - the ratio of the misses, paired interval; the goal {goal}):",
+            "",
+        ]
+        for claim in cheap:
+            fewer, interval = claim["fewer"], claim["fewer_ci"]
+            share = "-" if fewer is None else f"{100 * fewer:.0f} %"
+            if interval is not None:
+                share += f" [{100 * interval[0]:.0f}, {100 * interval[1]:.0f}]"
+            lines.append(
+                f"- `{claim['learned']}` at {claim['comparison']['time_ratio']:.2f}x: {share} "
+                f"fewer misses ({'meets' if claim['meets'] else 'short of'} {goal}); "
+                f"{_diff(claim['comparison'])} points."
+            )
+        lines.append("")
+    else:
+        lines += [f"No learned policy scans within {budget} the time of `{baseline}`.", ""]
+    return lines
 
 
 def _pooled(outcome: BenchmarkOutcome) -> dict[str, list[TrialRow]]:

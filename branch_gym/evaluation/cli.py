@@ -205,12 +205,10 @@ def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFac
     bench = benchmark(args.benchmark)
     if args.from_rows:
         try:
-            outcome, trees = outcome_from_rows(bench, args.policies, args.split, args.out)
+            outcome = outcome_from_rows(bench, args.policies, args.split, args.out, args.trees)
         except ValueError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_USAGE
-        if trees < min(stratum.seeds(args.split)[1] for stratum in bench.strata):
-            args.trees = trees
     else:
         if not _backend_ready(args.backend):
             return EXIT_USAGE

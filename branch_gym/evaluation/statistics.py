@@ -84,7 +84,9 @@ def paired_comparison(
 
     Returns:
         ``missed_pct_diff`` (a minus b, points), its paired-bootstrap interval
-        ``missed_pct_diff_ci``, ``scan_time_s_diff``, per-tree ``wins`` (a missed fewer),
+        ``missed_pct_diff_ci``, the ratio of the misses ``missed_ratio`` (a's over b's; None
+        when b missed none) and its interval ``missed_ratio_ci`` (resamples where b missed
+        some), ``scan_time_s_diff``, per-tree ``wins`` (a missed fewer),
         ``losses``, ``ties`` and the two-sided sign-test ``sign_test_p`` on the non-tied trees.
 
     Raises:
@@ -103,9 +105,13 @@ def paired_comparison(
     gt_totals = n_gt[index].sum(axis=1)
     valid = gt_totals > 0
     diffs = PERCENT * (missed_a - missed_b)[index].sum(axis=1)[valid] / gt_totals[valid]
+    b_totals = missed_b[index].sum(axis=1)
+    ratios = missed_a[index].sum(axis=1)[b_totals > 0] / b_totals[b_totals > 0]
     return {
         "missed_pct_diff": None if np.isnan(diff) else float(diff),
         "missed_pct_diff_ci": _interval(diffs, config.level) if valid.any() else None,
+        "missed_ratio": float(missed_a.sum() / missed_b.sum()) if missed_b.sum() else None,
+        "missed_ratio_ci": _interval(ratios, config.level) if len(ratios) else None,
         "scan_time_s_diff": float(time_a.mean() - time_b.mean()),
         "wins": wins,
         "losses": losses,
