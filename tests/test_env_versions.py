@@ -129,3 +129,19 @@ def test_a_model_in_the_env_of_another_id_is_refused_naming_both_ids() -> None:
             make_agent("ppo:ppo_dagger_v2", env)
     finally:
         env.close()
+
+
+def test_a_run_starts_from_a_model_of_an_id_that_differs_only_in_its_reward() -> None:
+    from branch_gym.env.versions import same_spaces
+    from branch_gym.training.train import load_policy_weights
+
+    assert same_spaces("BranchScanDiscrete-v2", "BranchScanDiscrete-v3")  # v3: the reward only
+    assert not same_spaces("BranchScanDiscrete-v1", "BranchScanDiscrete-v2")
+    assert not same_spaces("BranchScan-v3", "BranchScanDiscrete-v3")
+    path = resolve_model_path("ppo_dagger_v2")
+    model = load_model(path)
+    setattr(model, ENV_ID_ATTRIBUTE, "BranchScanDiscrete-v3")
+    load_policy_weights(model, path)
+    setattr(model, ENV_ID_ATTRIBUTE, "BranchScanDiscrete-v1")
+    with pytest.raises(ValueError, match="their observations or actions differ"):
+        load_policy_weights(model, path)

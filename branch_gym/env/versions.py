@@ -188,6 +188,13 @@ ENV_VERSIONS: tuple[EnvVersion, ...] = (
 ENV_IDS = tuple(v.env_id for v in ENV_VERSIONS)
 
 
+def same_spaces(env_id: str, other_id: str) -> bool:
+    """Whether two ids observe and act alike (they may differ in the reward): a policy of one
+    plays the other, and a run on one may start from a model of the other."""
+    a, b = env_version(env_id), env_version(other_id)
+    return (a.action_type, a.features) == (b.action_type, b.features)
+
+
 def env_version(env_id: str) -> EnvVersion:
     """The row of a registered id.
 

@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from branch_gym.env.versions import same_spaces
 from branch_gym.training.callbacks import (
     ScanMetricsCallback,
     TorchThreadsCallback,
@@ -314,13 +315,17 @@ def load_policy_weights(model: Any, path: str | Path, source: Any = None) -> Non
 
     Raises:
         FileNotFoundError: no such file (named).
-        ValueError: not a model file (``ModelFileError``), a model of another env id than
-            ``model``'s, or a network that does not fit ``model``'s (named).
+        ValueError: not a model file (``ModelFileError``), a model of an env id that observes
+            or acts otherwise than ``model``'s (a changed reward is fine), or a network that
+            does not fit ``model``'s (named).
     """
     source = load_model(path) if source is None else source
     theirs, ours = getattr(source, ENV_ID_ATTRIBUTE), getattr(model, ENV_ID_ATTRIBUTE, None)
-    if None not in (theirs, ours) and theirs != ours:
-        raise ValueError(f"init model {path} was trained on {theirs}, the run's env is {ours}")
+    if None not in (theirs, ours) and not same_spaces(theirs, ours):
+        raise ValueError(
+            f"init model {path} was trained on {theirs}, the run's env is {ours}: their "
+            "observations or actions differ"
+        )
     try:
         if is_privileged_policy(model.policy):
             model.policy.load_plain_weights(source.policy)
