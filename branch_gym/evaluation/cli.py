@@ -110,8 +110,9 @@ def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
     parser.add_argument(
         "--from-rows",
         action="store_true",
-        help="with --benchmark: write the results page from OUT/rows.jsonl, running nothing (the "
-        "first trees every policy has a row for: a run in progress, or committed rows)",
+        help="with --benchmark: write the results page from OUT/rows.jsonl, running nothing (each "
+        "policy's first trees it has a row for, pairs on the trees both have: a run in progress, "
+        "or committed rows)",
     )
     add_backend_arguments(parser, 1, "trials run at once: worker processes, or Ray tasks in flight")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
