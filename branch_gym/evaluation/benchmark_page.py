@@ -24,6 +24,7 @@ from branch_gym.evaluation.benchmark import BenchmarkOutcome, TrialRow
 from branch_gym.evaluation.claims import (
     ClaimRules,
     cheap_end_claims,
+    compare,
     fixed_schedule_claims,
     on_common_trees,
 )
@@ -33,7 +34,6 @@ from branch_gym.evaluation.statistics import (
     PERCENT,
     BootstrapConfig,
     bootstrap_ci,
-    paired_comparison,
 )
 from branch_gym.files import write_json_atomic
 from branch_gym.policy import PolicyFactory
@@ -88,14 +88,11 @@ def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
         for name, other in (("reference", reference), ("bound", bound)):
             if policy == (bench.reference_policy if name == "reference" else bench.bound_policy):
                 continue
-            rng = np.random.default_rng(seed)
-            row[f"vs_{name}"] = paired_comparison(*on_common_trees(records, other), rng)
+            row[f"vs_{name}"] = compare(records, other, seed)
         if policy != bench.reference_policy:
             row["power"] = _power(*on_common_trees(records, reference))
         rows[policy] = row
-    headroom = paired_comparison(
-        *on_common_trees(by_policy[bench.baseline_policy], bound), np.random.default_rng(seed)
-    )
+    headroom = compare(by_policy[bench.baseline_policy], bound, seed)
     return {
         "benchmark": bench.name,
         "digest": bench.digest(),

@@ -55,10 +55,9 @@ def on_common_trees(
     a: Sequence[TrialRow], b: Sequence[TrialRow]
 ) -> tuple[list[TrialRow], list[TrialRow]]:
     """The trials of ``a`` and ``b`` on the (stratum, seed) trees both have, in that order."""
-    keys_b = {(r.stratum, r.seed) for r in b}
-    common = sorted({(r.stratum, r.seed) for r in a} & keys_b)
     by_a = {(r.stratum, r.seed): r for r in a}
     by_b = {(r.stratum, r.seed): r for r in b}
+    common = sorted(by_a.keys() & by_b.keys())
     return [by_a[k] for k in common], [by_b[k] for k in common]
 
 
@@ -118,19 +117,17 @@ def fixed_schedule_claims(
             continue
         tried = {p: compare(by_policy[p], by_policy[fixed], seed) for p in learned}
         verdicts = {p: beats(c, rules) for p, c in tried.items()}
-
-        def upper(policy: str, tried: dict[str, dict] = tried) -> float:
-            interval = tried[policy]["missed_pct_diff_ci"]
-            return np.inf if interval is None else interval[1]
-
+        upper = {
+            p: np.inf if c["missed_pct_diff_ci"] is None else c["missed_pct_diff_ci"][1]
+            for p, c in tried.items()
+        }
+        ratio = {p: c["time_ratio"] or np.inf for p, c in tried.items()}
         winners = [p for p in learned if verdicts[p]]
-        within = [p for p in learned if (tried[p]["time_ratio"] or np.inf) <= 1.0]
-        if winners:
-            pick = min(winners, key=upper)
-        elif within:
-            pick = min(within, key=upper)
+        within = [p for p in learned if ratio[p] <= 1.0]
+        if winners or within:
+            pick = min(winners or within, key=upper.__getitem__)
         else:
-            pick = min(learned, key=lambda p: tried[p]["time_ratio"] or np.inf)
+            pick = min(learned, key=ratio.__getitem__)
         claims.append(
             {
                 "fixed": fixed,
