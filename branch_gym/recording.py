@@ -5,7 +5,7 @@ every frame the modeler receives; :func:`recording` wraps any loop driving a ses
 (:func:`branch_gym.evaluation.record.record_scan` runs one scan with a policy, ``eval.py
 --record DIR`` records every trial). Next to the frames they save the tree's ground
 truth (``truth.json``), the model the scan built online (``recorded_model.json``) and the
-modeler's seed and config (``metadata.json``), so that::
+modeler's seed, config and 2D stage (``metadata.json``), so that::
 
     python -m agents.commands record --seed 0 --out scans/seed0
     python -m recon.replay scans/seed0 --out replays/seed0 --truth scans/seed0/truth.json
@@ -114,7 +114,12 @@ def _finish(writer: ScanWriter, session: ScanSession, seed: int, policy: str) ->
             "created_by": "branch_gym.recording",
             "seed": seed,
             "policy": policy,
-            "modeler": {"seed": seed, "tracker": config.tracker, "config": asdict(config.modeler)},
+            "modeler": {
+                "seed": seed,
+                "tracker": config.tracker,
+                "config": asdict(config.modeler),
+                "curve2d": asdict(config.curve2d),  # the 2D stage (recon.replay reads it)
+            },
             "scan": {
                 "segmenter": config.segmenter,
                 "speed_mps": config.speed_mps,

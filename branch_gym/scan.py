@@ -35,6 +35,7 @@ from branch_gym.sim.tree.ground_truth import TreeGT
 from branch_gym.sim.validation import require_positive
 from branch_gym.sim.world import World, WorldConfig
 from recon.config import ModelerConfig
+from recon.curve2d.types import Curve2DConfig
 from recon.frame import Frame
 from recon.model import TreeModel
 from recon.modeler import IterationReport, Modeler, Outcome
@@ -91,6 +92,10 @@ class ScanConfig:
         controller: Follow controller gains (speed is taken from ``speed_mps``).
         modeler: Reconstruction thresholds (:meth:`modeler_config` resolves the ones left to
             the mask source).
+        curve2d: The modeler's 2D stage, the curves it fits to each mask
+            (:class:`recon.curve2d.types.Curve2DConfig`: the paper's rules and ours, e.g.
+            ``max_primary_turn_deg``, off by default). Its defaults hash as the scans before the
+            field (``branch_gym.evaluation.trials.HASH_NEUTRAL_DEFAULTS``).
         world: The simulated world; a name ("clean", the default, or "orchard": sky, row,
             trellis, camera model; :meth:`WorldConfig.preset`) stands for that preset with
             the paper's tree.
@@ -113,6 +118,7 @@ class ScanConfig:
     render_tracking_frames: bool = True
     controller: FollowControllerConfig = field(default_factory=FollowControllerConfig)
     modeler: ModelerConfig = field(default_factory=ModelerConfig)
+    curve2d: Curve2DConfig = field(default_factory=Curve2DConfig)
     world: WorldConfig = field(default_factory=WorldConfig)
     frame_pairing: FramePairingConfig = field(default_factory=FramePairingConfig)
 
@@ -145,10 +151,17 @@ class ScanConfig:
             raise ValueError(
                 f"ScanConfig.frame_pairing must be a FramePairingConfig, got {self.frame_pairing!r}"
             )
+        if not isinstance(self.curve2d, Curve2DConfig):
+            raise ValueError(f"ScanConfig.curve2d must be a Curve2DConfig, got {self.curve2d!r}")
 
     def modeler_config(self) -> ModelerConfig:
         """``modeler`` with the settings left to the mask source resolved for ``segmenter``."""
         return self.modeler.for_masks(learned=is_learned_segmenter(self.segmenter))
+
+    def make_modeler(self) -> Modeler:
+        """The modeler a scan of this config runs: its tracker, :meth:`modeler_config` and the
+        2D stage's ``curve2d``."""
+        return Modeler(make_tracker(self.tracker), self.modeler_config(), self.curve2d)
 
     def replace(self, **changes: object) -> ScanConfig:
         """A copy with some fields changed."""
@@ -238,7 +251,7 @@ class ScanSession:
         self.world = World(self.config.world)
         self.sensor = Sensor(self.world, self.config.segmenter, self.config.frame_pairing)
         self.intrinsics = self.sensor.intrinsics
-        self.modeler = Modeler(make_tracker(self.config.tracker), self.config.modeler_config())
+        self.modeler = self.config.make_modeler()
         controller_config = replace(self.config.controller, speed_mps=self.config.speed_mps)
         self.controller = PrimaryBranchController(controller_config, self.intrinsics)
         self.vertical_fov_m = self.intrinsics.vertical_fov_length_m(controller_config.z_target_m)

@@ -328,17 +328,35 @@ def modeler_overrides(items: Sequence[str]) -> dict[str, object]:
     known = {f.name for f in fields(ModelerConfig)}
     overrides: dict[str, object] = {}
     for item in items:
-        key, sep, text = item.partition("=")
-        if not sep:
-            raise ValueError(f"modeler setting {item!r} is not FIELD=VALUE")
+        key, value = parse_setting(item, "modeler setting")
         if key in REMOVED_MODELER_FIELDS:
             raise ValueError(f"modeler setting {item!r}: {removed_field_message(key)}")
         if key not in known:
             raise ValueError(
                 f"unknown ModelerConfig field {key!r}; fields: {', '.join(sorted(known))}"
             )
-        try:
-            overrides[key] = json.loads(text)
-        except json.JSONDecodeError as error:
-            raise ValueError(f"modeler setting {item!r}: {text!r} is not a JSON value") from error
+        overrides[key] = value
     return overrides
+
+
+def parse_setting(item: str, what: str) -> tuple[str, object]:
+    """One ``NAME=VALUE`` string of a command line, VALUE in JSON (``4``, ``0.5``, ``true``,
+    ``null``, ``Infinity``).
+
+    Args:
+        item: The string.
+        what: What it is, for the error message (``"modeler setting"``).
+
+    Returns:
+        (NAME, the value).
+
+    Raises:
+        ValueError: no ``=``, or a value that is not JSON (both name ``what`` and ``item``).
+    """
+    key, sep, text = item.partition("=")
+    if not sep:
+        raise ValueError(f"{what} {item!r} is not FIELD=VALUE")
+    try:
+        return key, json.loads(text)
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{what} {item!r}: {text!r} is not a JSON value") from error

@@ -604,7 +604,7 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     del before["modeler"]["secondary_trust_tolerance_px"]
     del before["modeler"]["secondary_min_reach_m"]
     del before["modeler"]["primary_max_turn_deg"], before["modeler"]["primary_model_vouches"]
-    del before["frame_pairing"]
+    del before["frame_pairing"], before["curve2d"]
     del before["world"]["orchard"], before["world"]["tree"]["architecture"]
     del before["world"]["tree"]["primary_base_height_m"]
     del before["world"]["tree"]["alley_side_reach_m"]
@@ -615,6 +615,8 @@ def test_fields_added_at_their_neutral_value_keep_saved_config_hashes() -> None:
     assert config_hash(reach) != published
     turn = replace(config, modeler=replace(config.modeler, primary_max_turn_deg=30.0))
     assert config_hash(turn) != published
+    turn_2d = replace(config, curve2d=replace(config.curve2d, max_primary_turn_deg=45.0))
+    assert config_hash(turn_2d) != published
     assert config_hash(default) not in {published, config_hash(turn)}  # a new rule: new trials
 
 

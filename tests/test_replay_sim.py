@@ -14,12 +14,14 @@ import numpy as np
 import pytest
 from replay_fixtures import record_short_scan
 
+from recon.curve2d.types import Curve2DConfig
 from recon.io import ScanFolder, ScanFormatError, open_source
 from recon.model import TreeModel
 from recon.replay import (
     OverlayVideo,
     ReplayConfig,
     ReplayError,
+    curve_settings,
     load_segmenter,
     load_truth,
     main,
@@ -58,6 +60,7 @@ def test_recording_holds_frames_truth_and_seed(recording):
     assert folder.has_masks and len(folder) > 20
     meta = folder.metadata
     assert meta["modeler"]["seed"] == 0 and meta["modeler"]["tracker"] == "lk"
+    assert curve_settings(meta, None) == Curve2DConfig()  # the scan's 2D stage
     assert meta["lossless"] and meta["result"]["n_iterations"] == result.n_iterations
     truth = load_truth(folder.truth_path())
     np.testing.assert_array_equal(truth.primary.points, result.truth.primary.points)

@@ -13,6 +13,12 @@ configurations as resolved, so a changed default of the scan changes it too), an
 fails when a definition and its row disagree. A change that moves any figure is a new version
 (``orchard-v2``), with a line in the Version History saying what changed.
 
+A proposed change of the reconstruction is tried on a benchmark's trees as a *variant*
+(:meth:`Benchmark.with_variant`, ``eval.py --benchmark NAME --variant SECTION.FIELD=VALUE``): a
+derived definition named ``NAME+SECTION.FIELD=VALUE``, with its own digest, so that its rows are
+refused in the benchmark's own output folder and its page says what it is. A variant is never
+published: where it helps, the change becomes a default and the benchmark a new version.
+
 Seeds: a stratum's test and validation seeds lie in ``[HELD_OUT_SEED_START, HELD_OUT_SEED_END)``,
 which nothing else draws from: ``eval.py``'s own trees start at 0, training's evaluation trees at
 10,000,000 and its training trees at 100,000,000 (:mod:`branch_gym.training.seeds`), so no
@@ -24,14 +30,16 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
-from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import asdict, dataclass, field, fields, is_dataclass, replace
 from pathlib import Path
+from typing import Any
 
 from branch_gym.env.config import scan_with_tree
 from branch_gym.evaluation.config import EvalConfig, TrialKey
 from branch_gym.evaluation.runner import check_output_folder, run_trials
 from branch_gym.evaluation.trials import (
+    CURVE2D_BEFORE_SCAN_FIELD,
     TrialRecord,
     config_to_dict,
     load_trial,
@@ -43,6 +51,7 @@ from branch_gym.scan import ScanConfig
 from branch_gym.scoring import scan_metrics_config
 from branch_gym.sim.world import WorldConfig
 from branch_gym.training.seeds import EVAL_SEED_BASE
+from recon.config import REMOVED_MODELER_FIELDS, ModelerConfig, parse_setting, removed_field_message
 from recon.metrics import MetricsConfig
 
 SPLITS = ("test", "validation")
@@ -52,8 +61,16 @@ HELD_OUT_SEED_START = 100_000
 HELD_OUT_SEED_END = EVAL_SEED_BASE
 # ScanConfig fields added after a version was published, at the value that version scans with:
 # left out of the digest there, so that a published digest stays its own.
-SCAN_FIELDS_ADDED_SINCE: dict[str, object] = {"orbit_holds_model": False}
+SCAN_FIELDS_ADDED_SINCE: dict[str, object] = {
+    "orbit_holds_model": False,
+    "curve2d": CURVE2D_BEFORE_SCAN_FIELD,  # the 2D stage, a scan setting since December 2026
+}
 _NOT_ADDED = object()
+# What a variant may vary: the reconstruction's settings (ScanConfig.modeler and .curve2d), never
+# what the benchmark measures (its world, trees, segmenter, seeds and scoring).
+VARIANT_SECTIONS = ("modeler", "curve2d")
+# Between a benchmark's name and each of its variant's settings: orchard-v2+curve2d.X=45.
+VARIANT_SEPARATOR = "+"
 
 
 @dataclass(frozen=True)
@@ -99,6 +116,10 @@ class Benchmark:
         reference_policy: The paper's controller, every other policy's paired comparison.
         bound_policy: The privileged bound (reads the ground truth).
         baseline_policy: No rotation: the headroom is its gap to the bound.
+        variant: Reconstruction settings over the scan, as (``SECTION.FIELD``, value) pairs
+            with SECTION one of :data:`VARIANT_SECTIONS` (a nested field: ``curve2d.skeleton.
+            max_gap_px``): a derived definition that tries a change on the benchmark's trees
+            (:meth:`with_variant`), named after them, never published. Empty: a benchmark.
     """
 
     name: str
@@ -113,10 +134,16 @@ class Benchmark:
     reference_policy: str = "periodic:22.5:1.5"
     bound_policy: str = "privileged"
     baseline_policy: str = "none"
+    variant: tuple[tuple[str, object], ...] = ()
 
     def __post_init__(self) -> None:
         if not self.strata:
             raise ValueError(f"benchmark {self.name!r} needs at least one stratum")
+        if (VARIANT_SEPARATOR in self.name) != bool(self.variant):
+            raise ValueError(
+                f"benchmark {self.name!r}: a variant's name, and only a variant's, holds "
+                f"{VARIANT_SEPARATOR!r} (Benchmark.with_variant names it)"
+            )
         names = [s.name for s in self.strata]
         if len(set(names)) != len(names):
             raise ValueError(f"benchmark {self.name!r}: stratum names repeat: {names}")
@@ -142,7 +169,70 @@ class Benchmark:
         scan = ScanConfig(
             world=WorldConfig.preset(self.world), segmenter=self.segmenter, tracker=self.tracker
         )
-        return scan_with_tree(scan, stratum.tree).replace(**dict(self.scan_changes))
+        scan = scan_with_tree(scan, stratum.tree).replace(**dict(self.scan_changes))
+        for path, value in self.variant:
+            scan = _with_setting(scan, path, value)
+        return scan
+
+    @property
+    def variant_items(self) -> list[str]:
+        """The variant's settings as ``PATH=VALUE`` strings, as its name shows them."""
+        return _setting_items(self.variant)
+
+    @property
+    def base_name(self) -> str:
+        """The benchmark a variant derives from (a benchmark's own name)."""
+        return self.name.split(VARIANT_SEPARATOR, 1)[0]
+
+    def with_variant(self, items: Sequence[str]) -> Benchmark:
+        """This benchmark with reconstruction settings changed: a derived definition.
+
+        Named ``NAME+PATH=VALUE+...`` (the values as JSON, a whole float as an integer), with its
+        own digest (the settings and the scans they make), never in :data:`VERSION_HISTORY`.
+
+        Args:
+            items: ``SECTION.FIELD=VALUE`` strings (``eval.py --variant``): SECTION one of
+                :data:`VARIANT_SECTIONS` (``modeler``: :class:`recon.config.ModelerConfig`,
+                ``curve2d``: :class:`recon.curve2d.types.Curve2DConfig`), VALUE in JSON (``45``,
+                ``true``, ``null``, ``Infinity``); an integer for a float field is taken as the
+                float (``45`` and ``45.0`` are one variant).
+
+        Raises:
+            ValueError: no setting; an item not ``PATH=VALUE`` or its value not JSON; a section
+                not in :data:`VARIANT_SECTIONS`, an unknown or removed field; a path set twice;
+                a value the config refuses (e.g. ``curve2d.max_primary_turn_deg=0``) or one that
+                changes nothing.
+        """
+        if not items:
+            raise ValueError("a variant needs at least one SECTION.FIELD=VALUE setting")
+        base = self.scan_config(self.strata[0])
+        settings = dict(self.variant)
+        for item in items:
+            path, value = parse_setting(item, "variant setting")
+            if path.split(".", 1)[0] not in VARIANT_SECTIONS or "." not in path:
+                raise ValueError(
+                    f"variant setting {item!r}: vary a field of {' or '.join(VARIANT_SECTIONS)} "
+                    "(SECTION.FIELD=VALUE, e.g. curve2d.max_primary_turn_deg=45)"
+                )
+            if path in settings:
+                raise ValueError(f"variant setting {item!r}: {path} is set twice")
+            try:
+                changed = _with_setting(base, path, value)
+            except (ValueError, TypeError) as exc:  # TypeError: a config's check met a bad type
+                raise ValueError(f"variant setting {item!r}: {exc}") from exc
+            value = _setting_at(changed, path)
+            if value == _setting_at(base, path):
+                raise ValueError(f"variant setting {item!r} changes nothing: {self.name} has it")
+            settings[path] = value
+        new = {path: value for path, value in settings.items() if path not in dict(self.variant)}
+        return replace(
+            self,
+            name=VARIANT_SEPARATOR.join([self.name, *_setting_items(new.items())]),
+            description=self.description
+            if self.variant
+            else f"a variant of {self.name}, not the benchmark: {self.description}",
+            variant=tuple(settings.items()),
+        )
 
     def metrics_config(self, stratum: Stratum) -> MetricsConfig:
         """The scoring rules of ``stratum``'s trials."""
@@ -156,6 +246,8 @@ class Benchmark:
     def to_json_dict(self) -> dict:
         """The definition as JSON-able data, every scan configuration resolved."""
         data = asdict(self)
+        if not self.variant:  # published before variants existed: their digests stay
+            del data["variant"]
         data["scan_changes"] = [
             [name, value]
             for name, value in self.scan_changes
@@ -175,6 +267,55 @@ class Benchmark:
         """Short hash of :meth:`to_json_dict` (literal values only: the same on any machine)."""
         text = json.dumps(self.to_json_dict(), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _with_setting(config: Any, path: str, value: object) -> Any:
+    """``config`` (a dataclass) with its field at the dotted ``path`` set to ``value``.
+
+    An integer for a field annotated ``float`` becomes a float (one hash for ``45`` and ``45.0``).
+
+    Raises:
+        ValueError: an unknown or removed field, or a section (a nested config) set as a whole,
+            named with the path; the config's own check of the value.
+    """
+    name, _, rest = path.partition(".")
+    known = {f.name: f for f in fields(config)}
+    if isinstance(config, ModelerConfig) and name in REMOVED_MODELER_FIELDS:
+        raise ValueError(removed_field_message(name))
+    if name not in known:
+        raise ValueError(
+            f"{type(config).__name__} has no field {name!r}; fields: {', '.join(sorted(known))}"
+        )
+    current = getattr(config, name)
+    if rest:
+        if not is_dataclass(current):
+            raise ValueError(f"{type(config).__name__}.{name} has no fields (drop .{rest})")
+        value = _with_setting(current, rest, value)
+    elif is_dataclass(current):
+        raise ValueError(
+            f"{type(config).__name__}.{name} is a section: set one of its fields ({name}.FIELD)"
+        )
+    elif (
+        isinstance(value, int) and not isinstance(value, bool) and "float" in str(known[name].type)
+    ):
+        value = float(value)
+    return replace(config, **{name: value})
+
+
+def _setting_items(settings: Iterable[tuple[str, object]]) -> list[str]:
+    """``PATH=VALUE`` strings of settings: the value in JSON, a whole float as an integer."""
+    items = []
+    for path, value in settings:
+        whole = isinstance(value, float) and value.is_integer()
+        items.append(f"{path}={int(value) if whole else json.dumps(value)}")
+    return items
+
+
+def _setting_at(config: Any, path: str) -> object:
+    """The value of ``config``'s field at the dotted ``path``."""
+    for name in path.split("."):
+        config = getattr(config, name)
+    return config
 
 
 def _published_scan_dict(scan: ScanConfig) -> dict:

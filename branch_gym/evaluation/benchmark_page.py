@@ -9,7 +9,8 @@ paper's controller and against the privileged bound: the paired difference of mi
 95 % interval (:func:`branch_gym.evaluation.statistics.paired_comparison`). The headroom is the
 paired difference between no rotation and the bound. The power section gives, per policy, the
 half-width its interval against the paper's controller has and the trees that +-1 point would
-take (:mod:`branch_gym.evaluation.power`).
+take (:mod:`branch_gym.evaluation.power`). A variant's page (``eval.py --variant``) says it is one
+and, given the benchmark's own rows, pairs each policy with itself under the benchmark.
 """
 
 from __future__ import annotations
@@ -45,18 +46,26 @@ FRONT = "missed_vs_scan_time.png"
 TARGET_HALF_WIDTH_PCT = 1.0  # issue 60: the interval of a policy near the paper's, +-1 point
 
 
-def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
+def benchmark_results(
+    outcome: BenchmarkOutcome, seed: int = 0, base_rows: Sequence[TrialRow] = ()
+) -> dict:
     """The results as JSON-able data (module docstring).
 
     Args:
         outcome: A finished :func:`branch_gym.evaluation.benchmark.run_benchmark`.
         seed: Seeds the bootstrap resampling (the same command gives the same intervals).
+        base_rows: A variant's: the rows of the benchmark it derives from (its ``OUT/rows.jsonl``,
+            :func:`branch_gym.evaluation.benchmark.load_rows`). Each policy that has rows there
+            gets ``vs_base``: its missed % here minus there, paired on the trees both have.
     """
     bench = outcome.benchmark
     by_policy = _pooled(outcome)
     policies = list(by_policy)
     reference = by_policy[bench.reference_policy]
     bound = by_policy[bench.bound_policy]
+    base_by_policy: dict[str, list[TrialRow]] = {}
+    for row in base_rows:
+        base_by_policy.setdefault(row.policy, []).append(row)
     rows = {}
     for policy in policies:
         records = by_policy[policy]
@@ -91,9 +100,13 @@ def benchmark_results(outcome: BenchmarkOutcome, seed: int = 0) -> dict:
             row[f"vs_{name}"] = compare(records, other, seed)
         if policy != bench.reference_policy:
             row["power"] = _power(*on_common_trees(records, reference))
+        if on_common_trees(records, base_by_policy.get(policy, []))[0]:
+            row["vs_base"] = compare(records, base_by_policy[policy], seed)
         rows[policy] = row
     headroom = compare(by_policy[bench.baseline_policy], bound, seed)
+    variant = {"of": bench.base_name, "settings": bench.variant_items} if bench.variant else {}
     return {
+        **({"variant": variant} if variant else {}),
         "benchmark": bench.name,
         "digest": bench.digest(),
         "split": outcome.split,
@@ -165,6 +178,7 @@ def format_page(results: dict, command: str, front: bool = False) -> str:
         "differences paired on the trees both policies have "
         f"(policy minus `{reference}`, the paper's controller, and minus `{bound}`).",
         "",
+        *_variant_lines(results),
     ]
     if "trees_limit" in results:
         lines += [
@@ -234,6 +248,41 @@ def format_page(results: dict, command: str, front: bool = False) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+def _variant_lines(results: dict) -> list[str]:
+    """A variant's notice and, given the benchmark's rows, each policy against itself there."""
+    variant = results.get("variant")
+    if not variant:
+        return []
+    base = variant["of"]
+    settings = ", ".join(f"`{item}`" for item in variant["settings"])
+    lines = [
+        f"**A variant, not the benchmark**: `{base}` with {settings}, a derived definition "
+        f"(`eval.py --variant`) with its own digest, never in the Version History; its figures "
+        f"are not `{base}`'s.",
+        "",
+    ]
+    paired = {
+        policy: row["vs_base"] for policy, row in results["policies"].items() if "vs_base" in row
+    }
+    if paired:
+        lines += [
+            f"Each policy against itself under `{base}` (its rows given with `--base-out`), "
+            "paired on the trees both have: missed % difference (variant minus benchmark), "
+            "trees the variant missed fewer / more branches on, and both mean scan times.",
+            "",
+            "| policy | trees | missed % difference [95 %] | fewer / more | scan time s |",
+            "|---|---|---|---|---|",
+        ]
+        for policy, comparison in paired.items():
+            lines.append(
+                f"| `{policy}` | {comparison['trees']} | {_diff(comparison)} | "
+                f"{comparison['wins']} / {comparison['losses']} | "
+                f"{comparison['scan_time_s']:.1f} vs {comparison['other_scan_time_s']:.1f} |"
+            )
+        lines.append("")
+    return lines
 
 
 def _claims_lines(results: dict) -> list[str]:

@@ -27,6 +27,14 @@ policies added; OUT then also holds ``benchmark.md`` (the results page: missed %
 time, failures and paired intervals against the paper's controller and the privileged bound)
 and ``benchmark.json``. The scan options and ``--seed`` are refused with it.
 
+``--variant SECTION.FIELD=VALUE ...`` (with ``--benchmark``) tries a change of the
+reconstruction on the benchmark's trees: ``modeler.FIELD`` or ``curve2d.FIELD`` (``ScanConfig``'s
+``modeler`` and ``curve2d``), e.g. ``--variant curve2d.max_primary_turn_deg=45``. It runs a
+derived definition, ``NAME+curve2d.max_primary_turn_deg=45``, with its own digest: give it its
+own ``--out`` (the benchmark's refuses its rows); its page says it is a variant, and with
+``--base-out DIR`` (the benchmark's own ``--out`` of the same split) pairs each policy with
+itself there.
+
 ``--backend ray`` runs the trials as Ray tasks (``pip install .[ray]``): on a private local Ray
 instance of --workers CPUs, or on the cluster at --address; the results are the same as the
 default process pool's (docs/integrations/ray.md).
@@ -47,8 +55,12 @@ from tqdm import tqdm
 from branch_gym.cli_options import add_scan_options, scan_config
 from branch_gym.evaluation.benchmark import (
     BENCHMARKS,
+    ROWS_FILE,
     SPLITS,
+    Benchmark,
+    TrialRow,
     benchmark,
+    load_rows,
     outcome_from_rows,
     run_benchmark,
 )
@@ -108,6 +120,22 @@ def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
         "--split", choices=SPLITS, default="test", help="the benchmark's split (default test)"
     )
     parser.add_argument(
+        "--variant",
+        nargs="+",
+        metavar="SECTION.FIELD=VALUE",
+        help="with --benchmark: run a variant of it, a derived definition with its own name and "
+        "digest (give it its own --out) with reconstruction settings changed: modeler.FIELD "
+        "(recon.config.ModelerConfig) or curve2d.FIELD (recon.curve2d.types.Curve2DConfig), "
+        "JSON values, e.g. curve2d.max_primary_turn_deg=45",
+    )
+    parser.add_argument(
+        "--base-out",
+        type=Path,
+        metavar="DIR",
+        help="with --variant: the benchmark's own --out of the same split; the page pairs each "
+        "policy with its rows there (variant minus benchmark, on the trees both have)",
+    )
+    parser.add_argument(
         "--from-rows",
         action="store_true",
         help="with --benchmark: write the results page from OUT/rows.jsonl, running nothing (each "
@@ -159,12 +187,23 @@ def main(
     if args.benchmark is not None:
         fixed = [f for f in _FIXED_BY_BENCHMARK if any(a.split("=")[0] == f for a in argv)]
         if fixed:
-            parser.error(f"--benchmark fixes the scan and the trees: drop {' '.join(fixed)}")
+            hint = " (--variant modeler.FIELD=VALUE varies it)" if "--modeler" in fixed else ""
+            parser.error(f"--benchmark fixes the scan and the trees: drop {' '.join(fixed)}{hint}")
         if args.trees is not None and args.trees < 1:
             parser.error(f"--trees must be >= 1, got {args.trees}")
-        return _run_benchmark(args, argv, factory)
+        bench = benchmark(args.benchmark)
+        if args.variant:
+            try:
+                bench = bench.with_variant(args.variant)
+            except ValueError as exc:
+                parser.error(str(exc))
+        elif args.base_out is not None:
+            parser.error("--base-out pairs a variant with its benchmark: it needs --variant")
+        return _run_benchmark(bench, args, argv, factory)
     if args.from_rows:
         parser.error("--from-rows reads a benchmark's rows: it needs --benchmark")
+    if args.variant or args.base_out is not None:
+        parser.error("--variant and --base-out vary a benchmark: they need --benchmark")
     try:
         scan = scan_config(args)
         config = EvalConfig(
@@ -201,9 +240,16 @@ def main(
     return 0
 
 
-def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFactory) -> int:
-    """``--benchmark``: run (or resume) the split, write the results page, print it."""
-    bench = benchmark(args.benchmark)
+def _run_benchmark(
+    bench: Benchmark, args: argparse.Namespace, argv: list[str], factory: PolicyFactory
+) -> int:
+    """``--benchmark`` (or a variant of it): run (or resume) the split, write the results page,
+    print it."""
+    try:  # the benchmark's own rows (--base-out) are read first: a bad folder costs no run
+        base_rows = () if args.base_out is None else _base_rows(bench, args.base_out)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     if args.from_rows:
         try:
             outcome = outcome_from_rows(bench, args.policies, args.split, args.out, args.trees)
@@ -225,7 +271,9 @@ def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFac
             return _failed(exc, args.out, progress)
         finally:
             progress.close()
-    results = benchmark_results(outcome)
+    results = benchmark_results(outcome, base_rows=base_rows)
+    if base_rows and not any("vs_base" in row for row in results["policies"].values()):
+        print(f"warning: no policy shares a tree with {args.base_out}", file=sys.stderr)
     if args.trees is not None:
         results["trees_limit"] = args.trees
     command = "python eval.py " + shlex.join(argv)
@@ -234,6 +282,18 @@ def _run_benchmark(args: argparse.Namespace, argv: list[str], factory: PolicyFac
     print(files[1].read_text())
     print("wrote " + ", ".join(str(path) for path in files))
     return 0
+
+
+def _base_rows(variant: Benchmark, out: Path) -> list[TrialRow]:
+    """The rows of the benchmark ``variant`` derives from, saved under ``out``.
+
+    Raises:
+        ValueError: ``out`` holds no rows, or rows of another definition (a variant's).
+    """
+    rows = load_rows(out, benchmark(variant.base_name))
+    if not rows:
+        raise ValueError(f"--base-out {out} holds no {ROWS_FILE} of {variant.base_name}")
+    return list(rows.values())
 
 
 def _backend_ready(backend: str) -> bool:

@@ -268,6 +268,54 @@ def trial_path(out: Path, policy: str, seed: int) -> Path:
     return out / TRIALS_DIR / policy_slug(policy) / f"{seed}.json"
 
 
+# ScanConfig.curve2d (recon.curve2d.types.Curve2DConfig) as every scan ran it before the 2D stage
+# was a scan setting (December 2026): a literal, so that a changed default of the 2D stage hashes
+# apart (and changes a benchmark's digest, benchmark.SCAN_FIELDS_ADDED_SINCE). A field added to
+# Curve2DConfig later gets its earlier value here.
+CURVE2D_BEFORE_SCAN_FIELD = {
+    "crossing_level_px": 4.0,
+    "extend_secondary_tips": True,
+    "inlier_threshold_px": 4.0,
+    "max_primary_paths": 100,
+    "max_primary_turn_deg": "inf",  # config_to_dict's form of math.inf
+    "max_secondary_bend_deg": 120.0,
+    "max_secondary_paths": 100,
+    "max_spanning_width": 0.5,
+    "min_primary_elongation": 4.0,
+    "min_primary_length_px": 40.0,
+    "min_samples": 3,
+    "min_secondary_inlier_fraction": 0.8,
+    "min_secondary_length_px": 20.0,
+    "motion_direction_uv": [0.0, -1.0],
+    "primary_view_span": 0.9,
+    "radius_fence_iqr": 1.5,
+    "sample_spacing_px": 30.0,
+    "score": "unique_rows",
+    "secondary_min_samples": 7,
+    "secondary_sample_spacing_px": 10.0,
+    "skeleton": {
+        "border_extension_px": 32,
+        "border_px": 10,
+        "bridge_max_angle_deg": 30.0,
+        "bridge_min_length_px": 20.0,
+        "bridge_tangent_px": 12.0,
+        "max_gap_px": 6.0,
+        "max_hole_area_px": 300,
+        "medial_axis_seed": 0,
+        "method": "skeletonize",
+        "occlusion_gap_radii": 2.0,
+        "occlusion_max_angle_deg": 15.0,
+        "occlusion_min_elongation": 2.0,
+        "occlusion_wide_ends": True,
+        "occlusion_width_ratio": 1.5,
+        "radius_offset_px": 0.5,
+        "spur_prune_factor": 1.5,
+    },
+    "spanning_min_inlier_fraction": 0.95,
+    "tip_extension_radii": 2.0,
+    "tip_tangent_px": 10.0,
+}
+
 # Fields added after results were published, by dotted path into the config, with the value that
 # reproduces the earlier behaviour. ScanConfig.render_tracking_frames (the fast oracle mode):
 # True renders every frame, as every scan did before it existed.
@@ -295,14 +343,18 @@ HASH_NEUTRAL_DEFAULTS = {
     "world.orchard.trellis_reach_m": None,
     "world.orchard.camera.jpeg": True,
     "orbit_holds_model": False,  # orchard-v2's fix; off: the scans before it
+    "curve2d": CURVE2D_BEFORE_SCAN_FIELD,  # the 2D stage as a scan setting
 }
 
 
 def config_to_dict(config: Any) -> dict:
-    """A (possibly nested) config dataclass as a JSON-able dict."""
+    """A (possibly nested) config dataclass as a strict-JSON-able dict: non-finite floats as the
+    strings ``"inf"``, ``"-inf"`` and ``"nan"`` (as trial files write them; e.g. the 2D stage's
+    ``max_primary_turn_deg``)."""
     if not is_dataclass(config):
         raise TypeError(f"expected a dataclass config, got {type(config).__name__}")
-    return json.loads(json.dumps(asdict(config), sort_keys=True, default=str))
+    text = json.dumps(asdict(config), sort_keys=True, default=str)
+    return json.loads(text, parse_constant=lambda constant: str(float(constant)))
 
 
 def config_hash(config: Any) -> str:

@@ -12,7 +12,8 @@ OUT holds (``docs/replay.md``):
 * ``overlay.mp4`` (``overlay.gif`` without an MP4 codec): each image with its mask and the
   projected model;
 * ``plot3d.png``: the model, the camera path and the ground truth if given;
-* ``summary.json``: counts, seed, config, outcomes, median timings and the metrics (``--truth``).
+* ``summary.json``: counts, seed, config (the modeler's and the 2D stage's), outcomes, median
+  timings and the metrics (``--truth``).
 
 The output folder is written next to OUT and renamed when complete: a failed replay leaves nothing.
 
@@ -43,6 +44,7 @@ from recon.replay.inputs import (
     TRACKERS,
     ReplayError,
     ReplaySegmenterSpec,
+    curve_settings,
     load_segmenter,
     load_truth,
     modeler_settings,
@@ -57,6 +59,7 @@ __all__ = [
     "ReplayError",
     "ReplayResult",
     "ReplaySegmenterSpec",
+    "curve_settings",
     "load_segmenter",
     "load_truth",
     "main",

@@ -7,13 +7,14 @@ from __future__ import annotations
 import importlib
 import json
 import logging
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
 from recon.config import REMOVED_MODELER_FIELDS, ModelerConfig, removed_field_message
+from recon.curve2d.types import Curve2DConfig
 from recon.io.folder import ScanFormatError
 from recon.io.rescale import PIPELINE_FOCAL_PX, RescaledSource
 from recon.io.source import ScanSource
@@ -94,6 +95,40 @@ def modeler_settings(
             logger.warning("ignoring unknown recorded ModelerConfig fields %s", unknown)
         config = ModelerConfig(**{k: v for k, v in values.items() if k in known})
     return seed, config
+
+
+def curve_settings(metadata: dict, config: Curve2DConfig | None) -> Curve2DConfig:
+    """The 2D stage's settings: ``config``, else the recording's, else the defaults.
+
+    A branch_gym recording holds them as ``modeler.curve2d`` of its ``metadata.json`` (the
+    scan's ``ScanConfig.curve2d``); one made before, or elsewhere, ran the defaults. Recorded
+    fields unknown today are dropped with a warning.
+    """
+    if config is not None:
+        return config
+    recorded = metadata.get("modeler", {}) if isinstance(metadata, dict) else {}
+    values = recorded.get("curve2d") if isinstance(recorded, dict) else None
+    return _config_from(Curve2DConfig, values) if isinstance(values, dict) else Curve2DConfig()
+
+
+def _config_from(cls: type, values: dict) -> Any:
+    """A config dataclass from its ``asdict`` form (nested configs and tuples rebuilt)."""
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        logger.warning("ignoring unknown recorded %s fields %s", cls.__name__, unknown)
+    defaults = cls()
+    changes = {}
+    for name in known & set(values):
+        value, default = values[name], getattr(defaults, name)
+        if is_dataclass(default) and isinstance(value, dict):
+            value = _config_from(type(default), value)
+        elif isinstance(default, tuple) and isinstance(value, list):
+            value = tuple(value)
+        elif isinstance(default, float) and isinstance(value, str):  # "inf", strict JSON's form
+            value = float(value)
+        changes[name] = value
+    return cls(**changes)
 
 
 def learned_masks(source: ScanSource) -> bool:

@@ -8,7 +8,7 @@ import json
 import logging
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -16,6 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from recon.config import ModelerConfig
+from recon.curve2d.types import Curve2DConfig
 from recon.io.atomic import atomic_output_dir, check_output_dir
 from recon.io.folder import LoadedFrame
 from recon.io.source import ScanSource, open_source
@@ -27,6 +28,7 @@ from recon.replay.inputs import (
     TRACKERS,
     ReplayError,
     at_working_focal_length,
+    curve_settings,
     learned_masks,
     load_scoring,
     load_segmenter,
@@ -100,6 +102,7 @@ def replay(
     flow_red_blue_swapped: bool = False,
     pairing: FramePairingConfig | None = None,
     working_focal_px: float | str | None = "auto",
+    curve_config: Curve2DConfig | None = None,
 ) -> ReplayResult:
     """Run :class:`recon.modeler.Modeler` over a recorded scan and write the outputs.
 
@@ -131,6 +134,8 @@ def replay(
             and every network of ``branch_gym``'s segmenter training were made for, with a
             ``learned[:PATH]`` segmenter; as recorded with recorded masks or a segmenter object
             of your own.
+        curve_config: The 2D stage's settings; default: the recording's (the scan's
+            ``ScanConfig.curve2d``), else the defaults.
 
     Returns:
         The :class:`ReplayResult`.
@@ -164,7 +169,8 @@ def replay(
             recorded_tracker,
             tracker,
         )
-    modeler = Modeler(make_tracker(tracker, TRACKERS), modeler_config, seed=seed)
+    curve_config = curve_settings(source.metadata, curve_config)
+    modeler = Modeler(make_tracker(tracker, TRACKERS), modeler_config, curve_config, seed=seed)
     flow = FlowInputs.of(seg, pairing, flow_red_blue_swapped)
 
     with atomic_output_dir(out_dir, overwrite) as tmp:
@@ -194,6 +200,7 @@ def replay(
             source, model, log.reports, len(log.frame_rows), log.n_fed, log.skip_reasons,
             metrics, seed, modeler_config, tracker, segmenter, files, wall,
         )  # fmt: skip
+        summary["curve_config"] = asdict(curve_config)
         if flow.pairer is not None:
             summary["flow_inputs"] = dict(flow.counts)
         (tmp / "summary.json").write_text(json.dumps(summary, indent=1))
