@@ -18,7 +18,12 @@ from branch_gym.env.layout import flatten_observation
 from branch_gym.env.reward import RewardConfig
 from branch_gym.evaluation.episodes import run_episode, run_trial
 from branch_gym.scan import ScanConfig
-from branch_gym.training.callbacks import TorchThreadsCallback, ValueWarmupCallback, scan_metrics
+from branch_gym.training.callbacks import (
+    TorchThreadsCallback,
+    ValueWarmupCallback,
+    WarmupLearningRate,
+    scan_metrics,
+)
 from branch_gym.training.checkpoints import CheckpointError, read_checkpoint
 from branch_gym.training.config import PPOConfig, TrainConfig
 from branch_gym.training.envs import (
@@ -194,6 +199,37 @@ def test_value_warmup_trains_only_the_critic_until_its_step_count() -> None:
     assert not torch.equal(model.policy.action_net.weight, before["action_net.weight"])
     with pytest.raises(ValueError, match="value_warmup_steps"):
         TrainConfig(value_warmup_steps=100, recurrent=True)
+
+
+def test_the_value_warmup_steps_at_its_own_learning_rate() -> None:
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    schedule = WarmupLearningRate(3e-4, 1e-5, warmup_steps=64, total_steps=128)
+    assert schedule(1.0) == 3e-4 and schedule(0.5) == 3e-4  # 0 and 64 steps done
+    assert schedule(0.25) == 1e-5 and schedule(0.0) == 1e-5  # 96 and 128
+    model = PPO(
+        "MlpPolicy", "CartPole-v1", n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu"
+    )
+    model.lr_schedule = schedule
+
+    class UpdateRates(BaseCallback):  # the rate of each update, read after it
+        rates: list[float] = []
+
+        def _on_step(self) -> bool:
+            return True
+
+        def _on_rollout_start(self) -> None:
+            self.rates.append(model.policy.optimizer.param_groups[0]["lr"])
+
+    model.learn(128, callback=[ValueWarmupCallback(64), UpdateRates()])
+    assert UpdateRates.rates[1:] == [3e-4, 3e-4, 1e-5]  # the updates at 32, 64 and 96 steps
+    with pytest.raises(ValueError, match="needs value_warmup_steps"):
+        TrainConfig(value_warmup_learning_rate=3e-4)
+    with pytest.raises(ValueError, match="value_warmup_learning_rate"):
+        TrainConfig(value_warmup_steps=64, value_warmup_learning_rate=-1.0)
+    with pytest.raises(ValueError, match="positive rates"):
+        WarmupLearningRate(3e-4, 1e-5, warmup_steps=0, total_steps=128)
 
 
 def test_init_logit_scale_sharpens_sampling_and_keeps_the_argmax() -> None:

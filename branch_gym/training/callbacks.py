@@ -17,6 +17,8 @@ and every core during the update, when the workers wait.
 :class:`ValueWarmupCallback` lets only the value function learn during a run's first steps: a
 run started from a policy fitted elsewhere (a DAgger student, ``TrainConfig.init_model``) has an
 untrained critic, whose advantages would otherwise push the policy in random directions.
+:class:`WarmupLearningRate` is the learning-rate schedule that goes with it: the critic may warm
+up at a larger step than the fine-tuning's.
 """
 
 from __future__ import annotations
@@ -188,6 +190,36 @@ class ValueWarmupCallback(BaseCallback):
         warming_up = self.num_timesteps <= self.steps
         for parameter in policy_parameters(self.model.policy):
             parameter.requires_grad_(not warming_up)
+
+
+class WarmupLearningRate:
+    """An SB3 learning-rate schedule: ``warmup_rate`` for the run's first ``warmup_steps`` env
+    steps (those of :class:`ValueWarmupCallback`), ``rate`` afterwards.
+
+    SB3 calls it before each update with the progress remaining, ``1 - steps / total_steps``;
+    the step count is recovered from it, so a resumed run keeps the same schedule.
+
+    Args:
+        warmup_rate: Adam step size while only the value function learns.
+        rate: Adam step size afterwards (``PPOConfig.learning_rate``).
+        warmup_steps: Env steps of the warm-up.
+        total_steps: The run's env steps (``TrainConfig.timesteps``).
+    """
+
+    def __init__(self, warmup_rate: float, rate: float, warmup_steps: int, total_steps: int):
+        if not (warmup_rate > 0 and rate > 0 and 0 < warmup_steps and 0 < total_steps):
+            raise ValueError(
+                "WarmupLearningRate needs positive rates and step counts, got "
+                f"{warmup_rate}, {rate}, {warmup_steps}, {total_steps}"
+            )
+        self.warmup_rate = warmup_rate
+        self.rate = rate
+        self.warmup_steps = warmup_steps
+        self.total_steps = total_steps
+
+    def __call__(self, progress_remaining: float) -> float:
+        steps = round((1.0 - progress_remaining) * self.total_steps)
+        return self.warmup_rate if steps <= self.warmup_steps else self.rate
 
 
 def policy_parameters(policy: Any) -> list[torch.nn.Parameter]:

@@ -81,6 +81,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="STEPS",
         help="first steps in which only the value function learns (for --init-model)",
     )
+    parser.add_argument(
+        "--value-warmup-learning-rate",
+        type=float,
+        metavar="LR",
+        help="learning rate during --value-warmup (default: --learning-rate throughout)",
+    )
     parser.add_argument("--n-steps", type=int, help="PPO steps per env per rollout")
     parser.add_argument("--batch-size", type=int, help="PPO minibatch size")
     parser.add_argument("--n-epochs", type=int, help="PPO epochs per rollout")
@@ -144,6 +150,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "eval_trees": args.eval_trees,
         "time_penalty_per_s": args.time_penalty,
         "value_warmup_steps": args.value_warmup,
+        "value_warmup_learning_rate": args.value_warmup_learning_rate,
         "init_logit_scale": args.init_logit_scale,
         "init_model": None if args.init_model is None else str(args.init_model),
         "normalize": args.normalize or None,

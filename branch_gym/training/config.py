@@ -170,6 +170,12 @@ class TrainConfig:
         value_warmup_steps: Env steps at the start of the run during which only the value
             function learns (:class:`~branch_gym.training.callbacks.ValueWarmupCallback`): a
             policy from ``init_model`` comes without a trained critic. 0: off (our default).
+        value_warmup_learning_rate: Adam step size during the value warm-up
+            (:class:`~branch_gym.training.callbacks.WarmupLearningRate`); None: the PPO
+            ``learning_rate`` throughout. Our choice for fine-tuning a student: SB3's default
+            3e-4, where the fine-tuning itself steps at 1e-5: at 1e-5 throughout, the critic of
+            ``research/records/ppo_ft_orchard_v2b`` explained none of the returns after 16384
+            warm-up steps (explained variance -0.13 to +0.11).
         privileged_critic: Train with a privileged critic (issue 63): the training envs'
             observations gain the ground truth's ``privileged`` entry
             (:class:`~branch_gym.training.privileged_state.PrivilegedStateWrapper`: scored side
@@ -208,6 +214,7 @@ class TrainConfig:
     init_model: str | None = None
     init_logit_scale: float = 1.0
     value_warmup_steps: int = 0
+    value_warmup_learning_rate: float | None = None
     privileged_critic: bool = False
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
@@ -244,6 +251,10 @@ class TrainConfig:
                 "TrainConfig.privileged_critic needs an env id with Dict observations, "
                 f"not {self.env_id!r}"
             )
+        if self.value_warmup_learning_rate is not None:
+            require_positive(self, "value_warmup_learning_rate")
+            if not self.value_warmup_steps:
+                raise ValueError("TrainConfig.value_warmup_learning_rate needs value_warmup_steps")
         if self.value_warmup_steps and self.recurrent:
             raise ValueError("TrainConfig.value_warmup_steps needs recurrent=False")
         if self.init_model is not None and (self.recurrent or not str(self.init_model)):

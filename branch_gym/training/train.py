@@ -29,6 +29,7 @@ from branch_gym.training.callbacks import (
     TorchThreadsCallback,
     TqdmCallback,
     ValueWarmupCallback,
+    WarmupLearningRate,
 )
 from branch_gym.training.checkpoints import (
     CheckpointCallback,
@@ -139,6 +140,13 @@ def train(
             model.set_env(venv)
             model.set_random_seed(_resume_seed(config.seed, checkpoint.num_timesteps))
             restore_episode_counts(venv, checkpoint.episodes)
+        if config.value_warmup_learning_rate is not None:  # also on resume: the step target
+            model.lr_schedule = WarmupLearningRate(
+                config.value_warmup_learning_rate,
+                config.ppo.learning_rate,
+                config.value_warmup_steps,
+                config.timesteps,
+            )
         start = int(model.num_timesteps)
         evaluator = None
         if eval_env is not None:
