@@ -213,17 +213,17 @@ def test_the_value_warmup_steps_at_its_own_learning_rate() -> None:
     )
     model.lr_schedule = schedule
 
-    class UpdateRates(BaseCallback):  # the rate of each update, read after it
-        rates: list[float] = []
+    rates: list[float] = []
 
+    class UpdateRates(BaseCallback):  # the rate of each update, read after it
         def _on_step(self) -> bool:
             return True
 
         def _on_rollout_start(self) -> None:
-            self.rates.append(model.policy.optimizer.param_groups[0]["lr"])
+            rates.append(model.policy.optimizer.param_groups[0]["lr"])
 
     model.learn(128, callback=[ValueWarmupCallback(64), UpdateRates()])
-    assert UpdateRates.rates[1:] == [3e-4, 3e-4, 1e-5]  # the updates at 32, 64 and 96 steps
+    assert rates[1:] == [3e-4, 3e-4, 1e-5]  # the updates at 32, 64 and 96 steps
     with pytest.raises(ValueError, match="needs value_warmup_steps"):
         TrainConfig(value_warmup_learning_rate=3e-4)
     with pytest.raises(ValueError, match="value_warmup_learning_rate"):
