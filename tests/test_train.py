@@ -208,6 +208,9 @@ def test_the_value_warmup_steps_at_its_own_learning_rate() -> None:
     schedule = WarmupLearningRate(3e-4, 1e-5, warmup_steps=64, total_steps=128)
     assert schedule(1.0) == 3e-4 and schedule(0.5) == 3e-4  # 0 and 64 steps done
     assert schedule(0.25) == 1e-5 and schedule(0.0) == 1e-5  # 96 and 128
+    ramped = WarmupLearningRate(3e-4, 1e-5, warmup_steps=64, total_steps=128, ramp_steps=32)
+    assert ramped(0.5) == 3e-4 and ramped(0.375) == pytest.approx(0.5e-5)  # 64 and 80 steps
+    assert ramped(0.25) == 1e-5  # 96: the ramp done
     model = PPO(
         "MlpPolicy", "CartPole-v1", n_steps=32, batch_size=32, n_epochs=1, seed=0, device="cpu"
     )
@@ -228,6 +231,8 @@ def test_the_value_warmup_steps_at_its_own_learning_rate() -> None:
         TrainConfig(value_warmup_learning_rate=3e-4)
     with pytest.raises(ValueError, match="value_warmup_learning_rate"):
         TrainConfig(value_warmup_steps=64, value_warmup_learning_rate=-1.0)
+    with pytest.raises(ValueError, match="learning_rate_ramp_steps needs"):
+        TrainConfig(value_warmup_steps=64, learning_rate_ramp_steps=32)
     with pytest.raises(ValueError, match="positive rates"):
         WarmupLearningRate(3e-4, 1e-5, warmup_steps=0, total_steps=128)
 

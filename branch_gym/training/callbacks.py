@@ -194,7 +194,12 @@ class ValueWarmupCallback(BaseCallback):
 
 class WarmupLearningRate:
     """An SB3 learning-rate schedule: ``warmup_rate`` for the run's first ``warmup_steps`` env
-    steps (those of :class:`ValueWarmupCallback`), ``rate`` afterwards.
+    steps (those of :class:`ValueWarmupCallback`), then ``rate``, reached by a linear ramp from 0
+    over ``ramp_steps``.
+
+    The ramp is for Adam: its first step on a parameter without moments (the policy's, frozen
+    through the warm-up) is ``rate`` times the sign of the gradient, every parameter moving by
+    the full step at once; the ramp keeps those steps small until the moments are estimated.
 
     SB3 calls it before each update with the progress remaining, ``1 - steps / total_steps``;
     the step count is recovered from it, so a resumed run keeps the same schedule.
@@ -204,22 +209,37 @@ class WarmupLearningRate:
         rate: Adam step size afterwards (``PPOConfig.learning_rate``).
         warmup_steps: Env steps of the warm-up.
         total_steps: The run's env steps (``TrainConfig.timesteps``).
+        ramp_steps: Env steps of the ramp after the warm-up (0: ``rate`` at once).
     """
 
-    def __init__(self, warmup_rate: float, rate: float, warmup_steps: int, total_steps: int):
+    def __init__(
+        self,
+        warmup_rate: float,
+        rate: float,
+        warmup_steps: int,
+        total_steps: int,
+        ramp_steps: int = 0,
+    ):
         if not (warmup_rate > 0 and rate > 0 and 0 < warmup_steps and 0 < total_steps):
             raise ValueError(
                 "WarmupLearningRate needs positive rates and step counts, got "
                 f"{warmup_rate}, {rate}, {warmup_steps}, {total_steps}"
             )
+        if ramp_steps < 0:
+            raise ValueError(f"WarmupLearningRate ramp_steps must be >= 0, got {ramp_steps}")
         self.warmup_rate = warmup_rate
         self.rate = rate
         self.warmup_steps = warmup_steps
         self.total_steps = total_steps
+        self.ramp_steps = ramp_steps
 
     def __call__(self, progress_remaining: float) -> float:
         steps = round((1.0 - progress_remaining) * self.total_steps)
-        return self.warmup_rate if steps <= self.warmup_steps else self.rate
+        if steps <= self.warmup_steps:
+            return self.warmup_rate
+        if steps - self.warmup_steps >= self.ramp_steps:
+            return self.rate
+        return self.rate * (steps - self.warmup_steps) / self.ramp_steps
 
 
 def policy_parameters(policy: Any) -> list[torch.nn.Parameter]:

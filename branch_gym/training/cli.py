@@ -87,6 +87,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="LR",
         help="learning rate during --value-warmup (default: --learning-rate throughout)",
     )
+    parser.add_argument(
+        "--learning-rate-ramp",
+        type=int,
+        metavar="STEPS",
+        help="steps after --value-warmup over which the learning rate rises from 0",
+    )
     parser.add_argument("--n-steps", type=int, help="PPO steps per env per rollout")
     parser.add_argument("--batch-size", type=int, help="PPO minibatch size")
     parser.add_argument("--n-epochs", type=int, help="PPO epochs per rollout")
@@ -151,6 +157,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "time_penalty_per_s": args.time_penalty,
         "value_warmup_steps": args.value_warmup,
         "value_warmup_learning_rate": args.value_warmup_learning_rate,
+        "learning_rate_ramp_steps": args.learning_rate_ramp,
         "init_logit_scale": args.init_logit_scale,
         "init_model": None if args.init_model is None else str(args.init_model),
         "normalize": args.normalize or None,

@@ -176,6 +176,13 @@ class TrainConfig:
             3e-4, where the fine-tuning itself steps at 1e-5: at 1e-5 throughout, the critic of
             ``research/records/ppo_ft_orchard_v2b`` explained none of the returns after 16384
             warm-up steps (explained variance -0.13 to +0.11).
+        learning_rate_ramp_steps: Env steps after the value warm-up over which the learning
+            rate rises linearly from 0 to ``ppo.learning_rate`` (needs
+            ``value_warmup_learning_rate``). Our choice for fine-tuning a student: 8192 (8
+            updates): Adam's first step on the policy's parameters, without moments after the
+            warm-up, moves each by the full step (the sign of its gradient); at 1e-5 that first
+            step moved the student of ``research/records/ppo_ft_orchard_v2c`` by KL ~0.7 and it
+            never turned again. 0: no ramp (our default).
         privileged_critic: Train with a privileged critic (issue 63): the training envs'
             observations gain the ground truth's ``privileged`` entry
             (:class:`~branch_gym.training.privileged_state.PrivilegedStateWrapper`: scored side
@@ -215,6 +222,7 @@ class TrainConfig:
     init_logit_scale: float = 1.0
     value_warmup_steps: int = 0
     value_warmup_learning_rate: float | None = None
+    learning_rate_ramp_steps: int = 0
     privileged_critic: bool = False
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
@@ -255,6 +263,11 @@ class TrainConfig:
             require_positive(self, "value_warmup_learning_rate")
             if not self.value_warmup_steps:
                 raise ValueError("TrainConfig.value_warmup_learning_rate needs value_warmup_steps")
+        require_int(self, "learning_rate_ramp_steps", minimum=0)
+        if self.learning_rate_ramp_steps and self.value_warmup_learning_rate is None:
+            raise ValueError(
+                "TrainConfig.learning_rate_ramp_steps needs value_warmup_learning_rate"
+            )
         if self.value_warmup_steps and self.recurrent:
             raise ValueError("TrainConfig.value_warmup_steps needs recurrent=False")
         if self.init_model is not None and (self.recurrent or not str(self.init_model)):

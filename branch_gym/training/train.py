@@ -146,6 +146,7 @@ def train(
                 config.ppo.learning_rate,
                 config.value_warmup_steps,
                 config.timesteps,
+                config.learning_rate_ramp_steps,
             )
         start = int(model.num_timesteps)
         evaluator = None
