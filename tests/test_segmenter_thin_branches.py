@@ -7,8 +7,14 @@ import pytest
 import torch
 
 from branch_gym.segmenter_training.config import FlowAugmentConfig, TrainConfig
+from branch_gym.segmenter_training.generate import CLASS_PRIMARY, CLASS_SECONDARY
 from branch_gym.segmenter_training.orchard_augment import add_near_twig
-from branch_gym.segmenter_training.train import cl_dice_loss, segmentation_loss, soft_skeleton
+from branch_gym.segmenter_training.train import (
+    cl_dice_loss,
+    segmentation_loss,
+    skeleton_term,
+    soft_skeleton,
+)
 from recon.segmentation.flow import flow_to_picture_fast
 
 ITERATIONS = TrainConfig.skeleton_iterations
@@ -66,11 +72,77 @@ def test_the_skeleton_term_punishes_a_spurious_thin_line_outside_the_target():
     assert float(cl_dice_loss(target, target_without, ITERATIONS)) > 0.08
 
 
+def _classes(trunk_width: int) -> tuple[torch.Tensor, tuple[slice, ...]]:
+    """(1, 1, 64, 64) branch_target: a trunk ``trunk_width`` px wide (its right edge at column
+    34) and a 1-px-wide, 24-px-long side branch leaving it."""
+    target = torch.zeros(1, 1, 64, 64)
+    target[..., 8:60, 34 - trunk_width : 34] = CLASS_PRIMARY
+    branch = (slice(None), slice(None), 30, slice(34, 58))
+    target[branch] = CLASS_SECONDARY
+    return target, branch
+
+
+def test_the_side_branch_skeleton_recall_costs_a_lost_branch_and_ignores_the_trunk():
+    terms = {}
+    for width in (4, 8, 16):
+        target, branch = _classes(width)
+        kept = (target > 0).float()
+        lost = kept.clone()
+        lost[branch] = 0.0
+        thin_trunk = kept.clone()  # the trunk predicted 2 px wide, the branch kept
+        thin_trunk[..., 8:60, 34 - width : 32] = 0.0
+        terms[width] = [
+            float(skeleton_term(prob, target, ITERATIONS, "side"))
+            for prob in (kept, lost, thin_trunk)
+        ]
+    for kept, lost, thin_trunk in terms.values():
+        assert kept < 1e-6 and thin_trunk < 1e-6
+        assert lost > 0.9  # the whole skeleton (24 px, smoothed by 1) missed
+    # The trunk's width, in the target or in the prediction, does not change the term.
+    assert terms[4] == pytest.approx(terms[8], abs=1e-6)
+    assert terms[16] == pytest.approx(terms[8], abs=1e-6)
+    # clDice ("all") does see the trunk: the same lost branch weighs less beside a wider one.
+    target, branch = _classes(16)
+    lost = (target > 0).float()
+    lost[branch] = 0.0
+    wide = float(skeleton_term(lost, target, ITERATIONS, "all"))
+    target, branch = _classes(4)
+    lost = (target > 0).float()
+    lost[branch] = 0.0
+    assert float(skeleton_term(lost, target, ITERATIONS, "all")) != pytest.approx(wide, abs=1e-3)
+
+
+def test_the_side_branch_term_in_the_loss_pushes_the_lost_branch_up_and_leaves_the_trunk():
+    target, branch = _classes(8)
+    lost = (target > 0).float()
+    lost[branch] = 0.0
+    logits = torch.logit(lost.clamp(0.02, 0.98))
+    without = float(segmentation_loss(logits, target, 1.0))
+    side = float(
+        segmentation_loss(logits, target, 1.0, skeleton_weight=1.0, skeleton_target="side")
+    )
+    assert side > without + 0.9
+    # The default ("all") is clDice, as before the option.
+    every = float(segmentation_loss(logits, target, 1.0, skeleton_weight=1.0))
+    cl_dice = float(cl_dice_loss(torch.sigmoid(logits), (target > 0).float(), ITERATIONS))
+    assert every == pytest.approx(without + cl_dice, rel=1e-5)
+    # Its gradient reaches the lost branch's logits, upwards, and no other pixel.
+    logits.requires_grad_(True)
+    skeleton_term(torch.sigmoid(logits), target, ITERATIONS, "side").backward()
+    assert float(logits.grad[branch].max()) < 0.0
+    elsewhere = logits.grad.clone()
+    elsewhere[branch] = 0.0
+    assert float(elsewhere.abs().max()) == 0.0
+
+
 def test_train_config_names_a_bad_skeleton_setting():
     with pytest.raises(ValueError, match="skeleton_weight"):
         TrainConfig(skeleton_weight=-1.0)
     with pytest.raises(ValueError, match="skeleton_iterations"):
         TrainConfig(skeleton_iterations=0)
+    with pytest.raises(ValueError, match="skeleton_target"):
+        TrainConfig(skeleton_target="primary")
+    assert TrainConfig().skeleton_target == "all"
     with pytest.raises(ValueError, match="near_twig_flow_gain_range"):
         FlowAugmentConfig(near_twig_flow_gain_range=(0.5, 2.0))
 

@@ -29,6 +29,7 @@ from tqdm import tqdm
 
 from branch_gym.segmenter_training.config import (
     NEARER_NEGATIVE_FLOW_RATIO,
+    SKELETON_TARGETS,
     FlowAugmentConfig,
     GenerateConfig,
     OrchardAugmentConfig,
@@ -142,7 +143,7 @@ def _train(args: argparse.Namespace) -> None:
         encoder_learning_rate_scale=args.encoder_learning_rate_scale,
         side_branch_weight=args.side_branch_weight,
         nearer_negative_weight=args.nearer_negative_weight,
-        skeleton_weight=args.skeleton_weight,
+        skeleton_weight=args.skeleton_weight, skeleton_target=args.skeleton_target,
         orchard=replace(
             base.orchard, flow=flow, details_as_background=args.details_as_background,
             overcast_probability=args.overcast_probability,
@@ -321,7 +322,11 @@ def main(argv: list[str] | None = None) -> int:
         help="share of orchard training frames seen without a flow picture (colour alone)",
     )  # fmt: skip
     tr.add_argument("--skeleton-weight", type=float, default=TrainConfig.skeleton_weight,
-                    help="weight of the clDice (soft-skeleton) term beside BCE + Dice")  # fmt: skip
+                    help="weight of the soft-skeleton term beside BCE + Dice")  # fmt: skip
+    tr.add_argument("--skeleton-target", choices=SKELETON_TARGETS,
+                    default=TrainConfig.skeleton_target,
+                    help="the term on every branch pixel (all: clDice) or the side branches' "
+                    "skeleton recall alone (side)")  # fmt: skip
     tr.add_argument(
         "--near-twig-probability", type=float, default=FlowAugmentConfig.near_twig_probability,
         help="share of orchard training frames with a near twig setting the flow picture's scale",

@@ -15,6 +15,9 @@ TRAIN_SEED_LOW = 1_000_000
 TRAIN_SEED_HIGH = 2_000_000_000
 VALIDATION_SEED_OFFSET = 500_000
 EVAL_SEED_OFFSET = 0
+# What TrainConfig.skeleton_weight's term is computed on: "all" the branch pixels (clDice, the
+# term first tried), "side" the side branches' skeleton alone (its recall half only).
+SKELETON_TARGETS = ("all", "side")
 
 
 @dataclass(frozen=True)
@@ -320,6 +323,13 @@ class TrainConfig:
             pixels: real frames' long thin side branches were left out (issue 61).
         skeleton_iterations: Erosions of its soft skeleton (clDice's k; half the widest
             trunk's width in a 160x224 crop, our choice).
+        skeleton_target: What the term is computed on (one of :data:`SKELETON_TARGETS`):
+            ``"all"`` clDice on every branch pixel (the term first tried: it kept thin side
+            branches but thinned the trunk, its skeleton precision rewarding a thin mask,
+            docs/orchard_segmenter.md); ``"side"`` the share of the side branches' target
+            skeleton the prediction covers (clDice's recall half on side-branch pixels alone,
+            as the "Skeleton Recall" loss of Kirchhoff et al. 2024): the trunk's pixels,
+            predicted or not, never enter it.
         checkpoint_every: Steps between checkpoints.
         validate_every: Steps between validation IoU measurements.
         threshold: Branch probability threshold of the shipped segmenter.
@@ -342,6 +352,7 @@ class TrainConfig:
     nearer_negative_weight: float = 1.0
     skeleton_weight: float = 0.0
     skeleton_iterations: int = 10
+    skeleton_target: str = "all"
     checkpoint_every: int = 100
     validate_every: int = 500
     threshold: float = 0.5
@@ -364,6 +375,11 @@ class TrainConfig:
         if self.skeleton_iterations < 1:
             raise ValueError(
                 f"TrainConfig.skeleton_iterations must be >= 1, got {self.skeleton_iterations!r}"
+            )
+        if self.skeleton_target not in SKELETON_TARGETS:
+            raise ValueError(
+                f"TrainConfig.skeleton_target must be one of {SKELETON_TARGETS}, got "
+                f"{self.skeleton_target!r}"
             )
 
     def to_dict(self) -> dict:

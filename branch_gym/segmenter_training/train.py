@@ -26,7 +26,7 @@ from torch.nn import functional
 from tqdm import tqdm
 
 from branch_gym.segmenter_training.augment import augment_pair
-from branch_gym.segmenter_training.config import TrainConfig
+from branch_gym.segmenter_training.config import SKELETON_TARGETS, TrainConfig
 from branch_gym.segmenter_training.generate import (
     CLASS_SECONDARY,
     TARGET_NEARER_NEGATIVE,
@@ -111,9 +111,10 @@ def segmentation_loss(
     nearer_negative_weight: float = 1.0,
     skeleton_weight: float = 0.0,
     skeleton_iterations: int = 10,
+    skeleton_target: str = "all",
 ) -> torch.Tensor:
     """Binary cross-entropy plus ``dice_weight`` times the soft-Dice loss of the batch
-    (plus ``skeleton_weight`` times :func:`cl_dice_loss`).
+    (plus ``skeleton_weight`` times :func:`skeleton_term`).
 
     Args:
         logits: (B, 1, H, W) branch logits.
@@ -123,12 +124,14 @@ def segmentation_loss(
         dice_weight: Weight of the Dice term.
         side_branch_weight: Weight of side-branch pixels in the cross-entropy.
         nearer_negative_weight: Weight of the nearer negatives in the cross-entropy.
-        skeleton_weight: Weight of the clDice term (0: none).
+        skeleton_weight: Weight of the skeleton term (0: none).
         skeleton_iterations: Its soft skeleton's erosions.
+        skeleton_target: What it is computed on (:func:`skeleton_term`).
 
     Returns:
         Scalar loss tensor.
     """
+    classes = target
     weight = None
     if side_branch_weight != 1.0 or nearer_negative_weight != 1.0:
         weight = torch.ones_like(target)
@@ -142,8 +145,34 @@ def segmentation_loss(
     dice = 1 - (2 * inter + 1) / (prob.sum(dims) + target.sum(dims) + 1)
     loss = bce + dice_weight * dice.mean()
     if skeleton_weight > 0.0:
-        loss = loss + skeleton_weight * cl_dice_loss(prob, target, skeleton_iterations)
+        term = skeleton_term(prob, classes, skeleton_iterations, skeleton_target)
+        loss = loss + skeleton_weight * term
     return loss
+
+
+def skeleton_term(
+    prob: torch.Tensor, target: torch.Tensor, iterations: int, skeleton_target: str
+) -> torch.Tensor:
+    """The skeleton term of :func:`segmentation_loss` (``TrainConfig.skeleton_target``).
+
+    Args:
+        prob: (B, 1, H, W) branch probabilities.
+        target: (B, 1, H, W) float :func:`branch_target` (0 background, 1 primary, 2 side
+            branch, 3 nearer negative).
+        iterations: :func:`soft_skeleton`'s erosions.
+        skeleton_target: ``"all"``: :func:`cl_dice_loss` on every branch pixel; ``"side"``:
+            :func:`skeleton_recall_loss` on the side branches' pixels alone (a frame without
+            side branches adds 0).
+
+    Returns:
+        Scalar loss in [0, 1].
+    """
+    if skeleton_target == "all":
+        branch = ((target > 0) & (target != TARGET_NEARER_NEGATIVE)).to(prob.dtype)
+        return cl_dice_loss(prob, branch, iterations)
+    if skeleton_target == "side":
+        return skeleton_recall_loss(prob, (target == CLASS_SECONDARY).to(prob.dtype), iterations)
+    raise ValueError(f"skeleton_target must be one of {SKELETON_TARGETS}, got {skeleton_target!r}")
 
 
 def soft_skeleton(prob: torch.Tensor, iterations: int) -> torch.Tensor:
@@ -193,12 +222,38 @@ def cl_dice_loss(prob: torch.Tensor, target: torch.Tensor, iterations: int) -> t
     Returns:
         Scalar loss in [0, 1] (mean over the batch's frames).
     """
-    dims = (1, 2, 3)
-    skeleton_prob = soft_skeleton(prob, iterations)
-    skeleton_target = soft_skeleton(target, iterations)
-    precision = ((skeleton_prob * target).sum(dims) + 1) / (skeleton_prob.sum(dims) + 1)
-    sensitivity = ((skeleton_target * prob).sum(dims) + 1) / (skeleton_target.sum(dims) + 1)
+    precision = _skeleton_share(soft_skeleton(prob, iterations), target)
+    sensitivity = _skeleton_share(soft_skeleton(target, iterations), prob)
     return (1 - 2 * precision * sensitivity / (precision + sensitivity)).mean()
+
+
+def skeleton_recall_loss(prob: torch.Tensor, target: torch.Tensor, iterations: int) -> torch.Tensor:
+    """1 - the share of the target's soft skeleton that the prediction covers.
+
+    clDice's topology sensitivity alone (:func:`cl_dice_loss`; as the Skeleton Recall loss of
+    Kirchhoff et al. 2024): a branch counts by its length, and a prediction wider or thinner
+    than the target, its skeleton covered, costs nothing: it never rewards a thin mask as
+    clDice's precision half does (nor punishes a wide one: the cross-entropy and Dice judge
+    the width).
+
+    Args:
+        prob: (B, 1, H, W) branch probabilities.
+        target: (B, 1, H, W) {0, 1} float target (``"side"``: the side branches alone).
+        iterations: :func:`soft_skeleton`'s erosions.
+
+    Returns:
+        Scalar loss in [0, 1] (mean over the batch's frames; 0 for a frame with an empty
+        target).
+    """
+    with torch.no_grad():
+        skeleton = soft_skeleton(target, iterations)
+    return (1 - _skeleton_share(skeleton, prob)).mean()
+
+
+def _skeleton_share(skeleton: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """(B,) smoothed share of a (B, 1, H, W) soft skeleton inside a (B, 1, H, W) soft mask."""
+    dims = (1, 2, 3)
+    return ((skeleton * mask).sum(dims) + 1) / (skeleton.sum(dims) + 1)
 
 
 def _lr_factor(step: int, config: TrainConfig) -> float:
@@ -422,6 +477,7 @@ def train(
         loss = segmentation_loss(
             model(x), y, config.dice_weight, config.side_branch_weight,
             config.nearer_negative_weight, config.skeleton_weight, config.skeleton_iterations,
+            config.skeleton_target,
         )  # fmt: skip
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
