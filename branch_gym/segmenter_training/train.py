@@ -131,23 +131,27 @@ def segmentation_loss(
     Returns:
         Scalar loss tensor.
     """
-    classes = target
     weight = None
     if side_branch_weight != 1.0 or nearer_negative_weight != 1.0:
         weight = torch.ones_like(target)
         weight[target == CLASS_SECONDARY] = side_branch_weight
         weight[target == TARGET_NEARER_NEGATIVE] = nearer_negative_weight
-    target = ((target > 0) & (target != TARGET_NEARER_NEGATIVE)).to(logits.dtype)
-    bce = functional.binary_cross_entropy_with_logits(logits, target, weight=weight)
+    branch = _branch_pixels(target, logits.dtype)
+    bce = functional.binary_cross_entropy_with_logits(logits, branch, weight=weight)
     prob = torch.sigmoid(logits)
     dims = (1, 2, 3)
-    inter = (prob * target).sum(dims)
-    dice = 1 - (2 * inter + 1) / (prob.sum(dims) + target.sum(dims) + 1)
+    inter = (prob * branch).sum(dims)
+    dice = 1 - (2 * inter + 1) / (prob.sum(dims) + branch.sum(dims) + 1)
     loss = bce + dice_weight * dice.mean()
     if skeleton_weight > 0.0:
-        term = skeleton_term(prob, classes, skeleton_iterations, skeleton_target)
+        term = skeleton_term(prob, target, skeleton_iterations, skeleton_target)
         loss = loss + skeleton_weight * term
     return loss
+
+
+def _branch_pixels(target: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
+    """{0, 1} mask of a :func:`branch_target` map's branch pixels (primary and side branches)."""
+    return ((target > 0) & (target != TARGET_NEARER_NEGATIVE)).to(dtype)
 
 
 def skeleton_term(
@@ -168,8 +172,7 @@ def skeleton_term(
         Scalar loss in [0, 1].
     """
     if skeleton_target == "all":
-        branch = ((target > 0) & (target != TARGET_NEARER_NEGATIVE)).to(prob.dtype)
-        return cl_dice_loss(prob, branch, iterations)
+        return cl_dice_loss(prob, _branch_pixels(target, prob.dtype), iterations)
     if skeleton_target == "side":
         return skeleton_recall_loss(prob, (target == CLASS_SECONDARY).to(prob.dtype), iterations)
     raise ValueError(f"skeleton_target must be one of {SKELETON_TARGETS}, got {skeleton_target!r}")
