@@ -14,7 +14,7 @@ from gymnasium import spaces
 import branch_gym
 from agents.factory import AGENTS, make_agent
 from agents.ppo import check_ppo_spec, load_policy
-from branch_gym.env.layout import flatten_observation
+from branch_gym.env.layout import PRICE_KEY, branch_value_s, flatten_observation
 from branch_gym.env.reward import RewardConfig
 from branch_gym.evaluation.episodes import run_episode, run_trial
 from branch_gym.scan import ScanConfig
@@ -35,6 +35,7 @@ from branch_gym.training.envs import (
 )
 from branch_gym.training.model_files import ModelFileError, PolicyAgent, load_model
 from branch_gym.training.paths import RunPaths
+from branch_gym.training.prices import PriceRangeWrapper, draw_branch_value_s
 from branch_gym.training.seeds import (
     EVAL_SEED_BASE,
     MAX_EVAL_TREES,
@@ -110,6 +111,41 @@ def test_tree_seed_wrapper_ignores_vec_env_seeds_and_resumes() -> None:
     env.set_episodes(10)
     env.reset()
     assert inner.seeds == [train_tree_seed(5, 1, 2, e) for e in (0, 1, 10)]
+
+
+def test_price_range_wrapper_draws_dear_prices_the_observation_reads() -> None:
+    env = PriceRangeWrapper(
+        gymnasium.make(branch_gym.DISCRETE_ENV_ID, tracker="oracle", end_height_m=0.33),
+        (200.0, 400.0),
+    )
+    bounds = env.unwrapped.config.branch_value_s  # the env's own range, (25, 400)
+    drawn = []
+    for tree_seed in range(6):
+        obs, _ = env.reset(seed=tree_seed)
+        value = float(branch_value_s(obs[PRICE_KEY], bounds)[0])
+        assert 200.0 - 1e-3 <= value <= 400.0 + 1e-3
+        assert value == pytest.approx(draw_branch_value_s(tree_seed, 200.0, 400.0), rel=1e-4)
+        drawn.append(value)
+    assert len(set(np.round(drawn, 3))) == len(drawn)  # a price per tree, not one for all
+    obs, _ = env.reset(seed=0, options={"branch_value_s": 25.0})  # a fixed price is kept
+    assert float(branch_value_s(obs[PRICE_KEY], bounds)[0]) == pytest.approx(25.0, rel=1e-4)
+    with pytest.raises(ValueError, match="seed"):
+        env.reset()
+    env.close()
+    with pytest.raises(ValueError, match="branch_value_s"):
+        PriceRangeWrapper(env, (400.0, 200.0))
+
+
+def test_train_price_range_lies_within_the_env_range() -> None:
+    config = TrainConfig(env_id=branch_gym.DISCRETE_ENV_ID, train_branch_value_s=[200, 400])
+    assert config.train_branch_value_s == (200.0, 400.0)
+    assert TrainConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
+    with pytest.raises(ValueError, match="within the branch_value_s range"):
+        TrainConfig(env_id=branch_gym.DISCRETE_ENV_ID, train_branch_value_s=(200, 800))
+    with pytest.raises(ValueError, match="within the branch_value_s range"):
+        TrainConfig(train_branch_value_s=(200, 400))  # v0: no price
+    with pytest.raises(ValueError, match="train_branch_value_s"):
+        TrainConfig(env_id=branch_gym.DISCRETE_ENV_ID, train_branch_value_s=(float("nan"), 400))
 
 
 def test_config_validation_names_the_field() -> None:

@@ -168,17 +168,9 @@ class EnvConfig:
             f"positive angles (at most theta_max_deg={theta} for a trigger env)",
         )
         if self.branch_value_s is not None:
-            values = tuple(self.branch_value_s)
-            if not (
-                len(values) == 2
-                and all(is_number(v) and math.isfinite(v) and v > 0 for v in values)
-                and values[0] <= values[1]
-            ):
-                raise ValueError(
-                    "EnvConfig.branch_value_s must be (low, high) positive seconds with "
-                    f"low <= high, got {self.branch_value_s!r}"
-                )
-            object.__setattr__(self, "branch_value_s", tuple(float(v) for v in values))
+            object.__setattr__(
+                self, "branch_value_s", price_range(self.branch_value_s, "EnvConfig.branch_value_s")
+            )
         if self.coverage is not None and not isinstance(self.coverage, CoverageConfig):
             raise ValueError(f"EnvConfig.coverage must be a CoverageConfig, got {self.coverage!r}")
         for name, kind in (
@@ -222,6 +214,27 @@ def scan_with_tree(scan: ScanConfig, tree: str | TreeConfig) -> ScanConfig:
     if isinstance(tree, str) and tree in STRETCH_PRESETS:
         return STRETCH_PRESETS[tree](scan)
     return replace(scan, world=replace(scan.world, tree=config))
+
+
+def price_range(values: Any, name: str = "branch_value_s") -> tuple[float, float]:
+    """A (low, high) range of branch values: two finite positive seconds, low <= high.
+
+    Raises:
+        ValueError: anything else (``name`` in the message).
+    """
+    try:
+        pair = tuple(values)
+    except TypeError:
+        pair = ()
+    if not (
+        len(pair) == 2
+        and all(is_number(v) and math.isfinite(v) and v > 0 for v in pair)
+        and pair[0] <= pair[1]
+    ):
+        raise ValueError(
+            f"{name} must be (low, high) positive seconds with low <= high, got {values!r}"
+        )
+    return float(pair[0]), float(pair[1])
 
 
 def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:

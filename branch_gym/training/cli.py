@@ -116,6 +116,14 @@ def build_parser() -> argparse.ArgumentParser:
         "only the observation (TrainConfig.privileged_critic)",
     )
     parser.add_argument(
+        "--train-branch-value",
+        type=float,
+        nargs=2,
+        metavar=("LOW_S", "HIGH_S"),
+        help="draw the training episodes' branch value from this sub-range of the env's "
+        "(TrainConfig.train_branch_value_s)",
+    )
+    parser.add_argument(
         "--target-kl", type=float, help="PPO: stop an update's epochs past this KL divergence"
     )
     parser.add_argument(
@@ -164,6 +172,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "recurrent": args.recurrent or None,
         "worker_rollouts": args.worker_rollouts or None,
         "privileged_critic": args.privileged_critic or None,
+        "train_branch_value_s": args.train_branch_value,
         "render_tracking_frames": False if args.pose_only_tracking_frames else None,
     }
     return load_config(TrainConfig, args.config, {"ppo": ppo, **run})

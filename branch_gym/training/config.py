@@ -14,7 +14,7 @@ from gymnasium import spaces
 
 from branch_gym import ENV_ID_V0, ENV_IDS
 from branch_gym.config_utils import check_keys, flatten_dict, is_number
-from branch_gym.env.config import env_config_from_kwargs
+from branch_gym.env.config import env_config_from_kwargs, price_range
 from branch_gym.env.reward import RewardConfig
 from branch_gym.env.versions import env_version
 from branch_gym.sim.validation import (
@@ -195,6 +195,15 @@ class TrainConfig:
             ``load_model`` and so ``ppo:PATH`` play them as the plain policy of the actor, and
             the held-out evaluation plays the actor in the plain env. Needs a Dict-observation
             env id and ``recurrent=False``; a resumed run cannot switch it. Our choice: off.
+        train_branch_value_s: (low, high) seconds: each training episode's branch value drawn
+            log-uniformly from this sub-range of the env's ``branch_value_s``
+            (:class:`~branch_gym.training.prices.PriceRangeWrapper`; the observation still reads
+            the price against the env's range, and the held-out evaluation keeps the env's own
+            draw). None: the env's own draw over its whole range (our default). Needs a priced
+            env id. Our choice for the student's fine-tuning (issue 63): (200, 400), the dear
+            prices, where turning pays: over the whole range (half its episodes at <= 100 s,
+            where never turning costs the student about as much as its turns)
+            ``research/records/ppo_ft_orchard_v2d`` learned never to turn.
         ppo: PPO hyper-parameters.
     """
 
@@ -224,6 +233,7 @@ class TrainConfig:
     value_warmup_learning_rate: float | None = None
     learning_rate_ramp_steps: int = 0
     privileged_critic: bool = False
+    train_branch_value_s: tuple[float, float] | None = None
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
     def __post_init__(self) -> None:
@@ -268,6 +278,15 @@ class TrainConfig:
             raise ValueError(
                 "TrainConfig.learning_rate_ramp_steps needs value_warmup_learning_rate"
             )
+        if self.train_branch_value_s is not None:
+            low, high = price_range(self.train_branch_value_s, "TrainConfig.train_branch_value_s")
+            env_range = env_version(self.env_id).env_kwargs().get("branch_value_s")
+            if env_range is None or not env_range[0] <= low <= high <= env_range[1]:
+                raise ValueError(
+                    f"TrainConfig.train_branch_value_s ({low:g}, {high:g}) must lie within the "
+                    f"branch_value_s range of {self.env_id} ({env_range})"
+                )
+            object.__setattr__(self, "train_branch_value_s", (low, high))
         if self.value_warmup_steps and self.recurrent:
             raise ValueError("TrainConfig.value_warmup_steps needs recurrent=False")
         if self.init_model is not None and (self.recurrent or not str(self.init_model)):

@@ -1,11 +1,12 @@
 """The training and evaluation environments of a run.
 
 Training: ``n_envs`` copies of the run's env id, each wrapped in :class:`TreeSeedWrapper` (its own
-sequence of training trees) and SB3's ``Monitor``, in a ``SubprocVecEnv`` when ``n_envs > 1``
-(a ``DummyVecEnv`` otherwise), optionally inside ``VecNormalize``; with
-``TrainConfig.worker_rollouts`` each env's outermost wrapper is
-:class:`~branch_gym.training.worker_rollouts.PolicyRolloutWorker`. Evaluation: one plain env in
-this process, reset on the held-out trees one by one (:mod:`branch_gym.training.seeds`).
+sequence of training trees; inside it :class:`PriceRangeWrapper` with ``train_branch_value_s``)
+and SB3's ``Monitor``, in a ``SubprocVecEnv`` when ``n_envs > 1`` (a ``DummyVecEnv`` otherwise),
+optionally inside ``VecNormalize``; with ``TrainConfig.worker_rollouts`` each env's outermost
+wrapper is :class:`~branch_gym.training.worker_rollouts.PolicyRolloutWorker`. Evaluation: one
+plain env in this process, reset on the held-out trees one by one
+(:mod:`branch_gym.training.seeds`).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from gymnasium import spaces
 from branch_gym.env.layout import VECTOR_KEY
 from branch_gym.threads import pin_worker_threads
 from branch_gym.training.config import TrainConfig
+from branch_gym.training.prices import PriceRangeWrapper
 from branch_gym.training.seeds import TreeSeedWrapper
 from branch_gym.training.worker_rollouts import PolicyRolloutWorker
 
@@ -45,6 +47,8 @@ def make_env(
 
     pin_worker_threads()
     env = gym.make(config.env_id, **config.env_kwargs())
+    if config.train_branch_value_s is not None:
+        env = PriceRangeWrapper(env, config.train_branch_value_s)
     env = Monitor(TreeSeedWrapper(env, config.seed, rank, config.n_envs))
     if wrapper is not None:
         env = wrapper(env)
