@@ -148,6 +148,18 @@ def test_train_price_range_lies_within_the_env_range() -> None:
         TrainConfig(env_id=branch_gym.DISCRETE_ENV_ID, train_branch_value_s=(float("nan"), 400))
 
 
+def test_run_scan_time_limit_reaches_the_env() -> None:
+    config = TrainConfig(env_id=branch_gym.DISCRETE_ENV_ID, max_scan_time_s=160.0, **SHORT)
+    env = gymnasium.make(config.env_id, **config.env_kwargs())
+    assert env.unwrapped.config.scan.max_scan_time_s == 160.0
+    env.close()
+    assert "max_scan_time_s" not in TrainConfig().env_kwargs()  # the scan default, 100 s
+    with pytest.raises(ValueError, match="max_scan_time_s"):
+        TrainConfig(max_scan_time_s=-1.0)
+    with pytest.raises(ValueError, match="max_scan_time_s"):
+        TrainConfig(max_scan_time_s="long")
+
+
 def test_config_validation_names_the_field() -> None:
     for kwargs, field in [
         ({"n_envs": 0}, "n_envs"),

@@ -48,6 +48,7 @@ SCAN_SHORTCUTS = (
     "speed_mps",
     "render_tracking_frames",
     "control_dt_s",
+    "max_scan_time_s",
 )
 # Rotation of 180 deg or more about the branch would look at it from behind the tree's far side.
 _MAX_THETA_DEG = 90.0
@@ -268,7 +269,7 @@ def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:
     for key, valid_type in (("tracker", str), ("segmenter", str)):
         if key in shortcuts and not isinstance(shortcuts[key], valid_type):
             raise ValueError(f"{key} must be a str, got {shortcuts[key]!r}")
-    for key in ("end_height_m", "speed_mps", "control_dt_s"):
+    for key in ("end_height_m", "speed_mps", "control_dt_s", "max_scan_time_s"):
         if key in shortcuts and not is_number(shortcuts[key]):
             raise ValueError(f"{key} must be a number, got {shortcuts[key]!r}")
     if "render_tracking_frames" in shortcuts and not isinstance(

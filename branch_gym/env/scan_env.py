@@ -199,6 +199,7 @@ class BranchScanEnv(gym.Env):
     ``tree``                 "paper" (default), "cluttered", "hard", "tall_spindle", "ufo" or a
                              ``TreeConfig``
     ``end_height_m``         scan end height (0.75 m); ``speed_mps``: scan speed (0.025 m/s)
+    ``max_scan_time_s``      simulated time limit of a scan (100 s; a benchmark may set its own)
     ``scan``                 a full :class:`branch_gym.scan.ScanConfig` (the shortcuts above
                              modify it)
     ``action_type``          "continuous", "discrete", "discrete_hold" or "trigger" (set by id)
