@@ -142,7 +142,7 @@ def test_train_price_range_lies_within_the_env_range() -> None:
     assert TrainConfig.from_dict(json.loads(json.dumps(config.to_dict()))) == config
     with pytest.raises(ValueError, match="within the branch_value_s range"):
         TrainConfig(env_id=branch_gym.DISCRETE_ENV_ID, train_branch_value_s=(200, 800))
-    with pytest.raises(ValueError, match="within the branch_value_s range"):
+    with pytest.raises(ValueError, match="needs a priced env id"):
         TrainConfig(train_branch_value_s=(200, 400))  # v0: no price
     with pytest.raises(ValueError, match="train_branch_value_s"):
         TrainConfig(env_id=branch_gym.DISCRETE_ENV_ID, train_branch_value_s=(float("nan"), 400))

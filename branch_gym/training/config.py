@@ -286,10 +286,15 @@ class TrainConfig:
         if self.train_branch_value_s is not None:
             low, high = price_range(self.train_branch_value_s, "TrainConfig.train_branch_value_s")
             env_range = env_version(self.env_id).env_kwargs().get("branch_value_s")
-            if env_range is None or not env_range[0] <= low <= high <= env_range[1]:
+            if env_range is None:
+                raise ValueError(
+                    f"TrainConfig.train_branch_value_s needs a priced env id (v1 or later), "
+                    f"not {self.env_id!r}, whose episodes have no branch_value_s range"
+                )
+            if not env_range[0] <= low <= high <= env_range[1]:
                 raise ValueError(
                     f"TrainConfig.train_branch_value_s ({low:g}, {high:g}) must lie within the "
-                    f"branch_value_s range of {self.env_id} ({env_range})"
+                    f"branch_value_s range of {self.env_id}, {tuple(env_range)}"
                 )
             object.__setattr__(self, "train_branch_value_s", (low, high))
         if self.value_warmup_steps and self.recurrent:
