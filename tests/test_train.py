@@ -35,7 +35,7 @@ from branch_gym.training.envs import (
 )
 from branch_gym.training.model_files import ModelFileError, PolicyAgent, load_model
 from branch_gym.training.paths import RunPaths
-from branch_gym.training.prices import PriceRangeWrapper, draw_branch_value_s
+from branch_gym.training.prices import PriceRangeWrapper, tree_branch_value_s
 from branch_gym.training.seeds import (
     EVAL_SEED_BASE,
     MAX_EVAL_TREES,
@@ -124,7 +124,7 @@ def test_price_range_wrapper_draws_dear_prices_the_observation_reads() -> None:
         obs, _ = env.reset(seed=tree_seed)
         value = float(branch_value_s(obs[PRICE_KEY], bounds)[0])
         assert 200.0 - 1e-3 <= value <= 400.0 + 1e-3
-        assert value == pytest.approx(draw_branch_value_s(tree_seed, 200.0, 400.0), rel=1e-4)
+        assert value == pytest.approx(tree_branch_value_s(tree_seed, (200.0, 400.0)), rel=1e-4)
         drawn.append(value)
     assert len(set(np.round(drawn, 3))) == len(drawn)  # a price per tree, not one for all
     obs, _ = env.reset(seed=0, options={"branch_value_s": 25.0})  # a fixed price is kept

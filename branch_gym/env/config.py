@@ -17,6 +17,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
+import numpy as np
+
 from branch_gym.config_utils import check_keys, is_number
 from branch_gym.env.coverage import CoverageConfig
 from branch_gym.env.layout import (
@@ -236,6 +238,12 @@ def price_range(values: Any, name: str = "branch_value_s") -> tuple[float, float
             f"{name} must be (low, high) positive seconds with low <= high, got {values!r}"
         )
     return float(pair[0]), float(pair[1])
+
+
+def draw_branch_value_s(rng: np.random.Generator, bounds_s: tuple[float, float]) -> float:
+    """A branch value drawn log-uniformly on ``bounds_s`` (low, high) seconds from ``rng``."""
+    low, high = bounds_s
+    return float(np.exp(rng.uniform(np.log(low), np.log(high))))
 
 
 def env_config_from_kwargs(kwargs: dict[str, Any]) -> EnvConfig:

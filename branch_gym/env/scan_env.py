@@ -14,6 +14,7 @@ from branch_gym.env.actions import ActionCodec
 from branch_gym.env.config import (
     EnvConfig,
     branch_value_from_options,
+    draw_branch_value_s,
     env_config_from_kwargs,
     tree_from_options,
 )
@@ -461,7 +462,7 @@ class BranchScanEnv(gym.Env):
             )
         value = fixed_s
         if value is None:
-            value = float(np.exp(self.np_random.uniform(np.log(low), np.log(high))))
+            value = draw_branch_value_s(self.np_random, (low, high))
         self._price = price_feature(value, (low, high))
         return value
 

@@ -18,16 +18,15 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from branch_gym.env.config import price_range
+from branch_gym.env.config import draw_branch_value_s, price_range
 
 # Keeps the price stream apart from every other stream seeded by a tree seed.
 PRICE_STREAM = 0x9A1CE
 
 
-def draw_branch_value_s(tree_seed: int, low_s: float, high_s: float) -> float:
-    """The price of the episode on tree ``tree_seed``: log-uniform on [low_s, high_s] seconds."""
-    rng = np.random.default_rng([int(tree_seed), PRICE_STREAM])
-    return float(np.exp(rng.uniform(np.log(low_s), np.log(high_s))))
+def tree_branch_value_s(tree_seed: int, bounds_s: tuple[float, float]) -> float:
+    """The price of the episode on tree ``tree_seed``: log-uniform on ``bounds_s`` seconds."""
+    return draw_branch_value_s(np.random.default_rng([int(tree_seed), PRICE_STREAM]), bounds_s)
 
 
 class PriceRangeWrapper(gym.Wrapper):
@@ -57,5 +56,5 @@ class PriceRangeWrapper(gym.Wrapper):
                 raise ValueError(
                     "PriceRangeWrapper draws the price from the reset's tree seed: reset(seed=...)"
                 )
-            options["branch_value_s"] = draw_branch_value_s(seed, *self.branch_value_s)
+            options["branch_value_s"] = tree_branch_value_s(seed, self.branch_value_s)
         return self.env.reset(seed=seed, options=options)
