@@ -124,6 +124,13 @@ def build_parser() -> argparse.ArgumentParser:
         "(TrainConfig.train_branch_value_s)",
     )
     parser.add_argument(
+        "--view-shaping",
+        type=float,
+        metavar="WEIGHT",
+        help="reward a turn that shows a pending side branch at once, potential-based "
+        "(TrainConfig.view_shaping_weight; needs --privileged-critic)",
+    )
+    parser.add_argument(
         "--target-kl", type=float, help="PPO: stop an update's epochs past this KL divergence"
     )
     parser.add_argument(
@@ -173,6 +180,7 @@ def config_from_args(args: argparse.Namespace) -> TrainConfig:
         "worker_rollouts": args.worker_rollouts or None,
         "privileged_critic": args.privileged_critic or None,
         "train_branch_value_s": args.train_branch_value,
+        "view_shaping_weight": args.view_shaping,
         "render_tracking_frames": False if args.pose_only_tracking_frames else None,
     }
     return load_config(TrainConfig, args.config, {"ppo": ppo, **run})

@@ -7,6 +7,7 @@ of :func:`branch_gym.training.train.train`, not configuration.
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -208,6 +209,12 @@ class TrainConfig:
             prices, where turning pays: over the whole range (half its episodes at <= 100 s,
             where never turning costs the student about as much as its turns)
             ``research/records/ppo_ft_orchard_v2d`` learned never to turn.
+        view_shaping_weight: Reward units of potential-based shaping
+            (:class:`~branch_gym.training.shaping.ViewShapingWrapper`): a turn that brings an
+            unmatched scored side branch into a good view earns this at once, and matching it
+            (or leaving it behind) takes it back, so the optimal policies stay the env's. Needs
+            ``privileged_critic`` (the critic must see what the potential reads: the pending
+            branches and their headings). 0: off (our default).
         ppo: PPO hyper-parameters.
     """
 
@@ -239,6 +246,7 @@ class TrainConfig:
     learning_rate_ramp_steps: int = 0
     privileged_critic: bool = False
     train_branch_value_s: tuple[float, float] | None = None
+    view_shaping_weight: float = 0.0
     ppo: PPOConfig = field(default_factory=PPOConfig)
 
     def __post_init__(self) -> None:
@@ -282,6 +290,17 @@ class TrainConfig:
         if self.learning_rate_ramp_steps and self.value_warmup_learning_rate is None:
             raise ValueError(
                 "TrainConfig.learning_rate_ramp_steps needs value_warmup_learning_rate"
+            )
+        weight = self.view_shaping_weight
+        if not (is_number(weight) and math.isfinite(weight) and weight >= 0.0):
+            raise ValueError(
+                "TrainConfig.view_shaping_weight must be a finite number >= 0, "
+                f"got {self.view_shaping_weight!r}"
+            )
+        if self.view_shaping_weight and not self.privileged_critic:
+            raise ValueError(
+                "TrainConfig.view_shaping_weight needs privileged_critic: the critic must read "
+                "the pending branches the shaping's potential counts"
             )
         if self.train_branch_value_s is not None:
             low, high = price_range(self.train_branch_value_s, "TrainConfig.train_branch_value_s")

@@ -2,7 +2,8 @@
 
 Training: ``n_envs`` copies of the run's env id, each wrapped in :class:`TreeSeedWrapper` (its own
 sequence of training trees; inside it :class:`PriceRangeWrapper` with ``train_branch_value_s``)
-and SB3's ``Monitor``, in a ``SubprocVecEnv`` when ``n_envs > 1`` (a ``DummyVecEnv`` otherwise),
+and SB3's ``Monitor`` (outside it :class:`~branch_gym.training.shaping.ViewShapingWrapper` with
+``view_shaping_weight``), in a ``SubprocVecEnv`` when ``n_envs > 1`` (a ``DummyVecEnv`` otherwise),
 optionally inside ``VecNormalize``; with ``TrainConfig.worker_rollouts`` each env's outermost
 wrapper is :class:`~branch_gym.training.worker_rollouts.PolicyRolloutWorker`. Evaluation: one
 plain env in this process, reset on the held-out trees one by one
@@ -23,6 +24,7 @@ from branch_gym.threads import pin_worker_threads
 from branch_gym.training.config import TrainConfig
 from branch_gym.training.prices import PriceRangeWrapper
 from branch_gym.training.seeds import TreeSeedWrapper
+from branch_gym.training.shaping import ViewShapingWrapper
 from branch_gym.training.worker_rollouts import PolicyRolloutWorker
 
 DICT_POLICY = "MultiInputPolicy"
@@ -50,6 +52,8 @@ def make_env(
     if config.train_branch_value_s is not None:
         env = PriceRangeWrapper(env, config.train_branch_value_s)
     env = Monitor(TreeSeedWrapper(env, config.seed, rank, config.n_envs))
+    if config.view_shaping_weight:  # outside the Monitor: the curve's returns are the env's
+        env = ViewShapingWrapper(env, config.view_shaping_weight, config.ppo.gamma)
     if wrapper is not None:
         env = wrapper(env)
     return PolicyRolloutWorker(env, rank) if config.worker_rollouts else env

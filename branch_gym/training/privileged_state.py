@@ -132,32 +132,35 @@ def matched_branches(info: dict[str, Any]) -> set[int]:
     return {int(j) for j, _ in json.loads(info["metrics"]["matches"])}
 
 
-def privileged_state(
-    session: Any, matched: set[int], config: PrivilegedStateConfig | None = None
-) -> np.ndarray:
-    """The privileged vector of a scan session (module docstring's layout).
+# A pending in-view branch: (angle between its line and the optical axis in [0, pi/2] rad,
+# heading relative to the camera's rotation in rad, (base height - camera height) / vertical FoV).
+PendingBranch = tuple[float, float, float]
+
+
+def scored_branch_groups(
+    session: Any, matched: set[int], view_band_fov: float
+) -> tuple[dict[PrivilegedField, int], list[PendingBranch]]:
+    """The scored side branches of a session by group (module docstring), and those in view.
 
     Args:
         session: A reset :class:`branch_gym.scan.ScanSession`.
         matched: Indices into ``session.tree.secondaries`` of the matched branches.
-        config: Size and scales.
+        view_band_fov: Half-height of the view band in vertical FoVs.
 
     Returns:
-        (config.size,) float32 in [-1, 1].
+        The count of each of :data:`COUNT_FIELDS`, and the unmatched branches in the view band
+        (:data:`PendingBranch`, unsorted).
     """
-    config = config or PrivilegedStateConfig()
-    vector = np.zeros(config.size, np.float32)
-    vector[PrivilegedField.PROGRESS] = session.progress
+    counts = dict.fromkeys(COUNT_FIELDS, 0)
+    pending: list[PendingBranch] = []
     tree = session.tree
     if tree is None:
-        return vector
+        return counts, pending
     rules = scan_metrics_config(session.config)
     top_m = session.config.end_height_m + rules.gt_base_margin_m  # recon.metrics's scope
     camera_m, fov_m = session.camera_height_m, session.vertical_fov_m
-    half_band_m = config.view_band_fov * fov_m
+    half_band_m = view_band_fov * fov_m
     rotation_rad = math.radians(float(session.angle_deg))
-    counts = dict.fromkeys(COUNT_FIELDS, 0)
-    pending: list[tuple[float, float, float]] = []  # (view angle, relative heading, height)
     for j, branch in enumerate(tree.secondaries):
         points = np.asarray(branch.points, float)
         base_m = points[0, 2]
@@ -174,6 +177,26 @@ def privileged_state(
             relative = branch_heading_rad(points) - rotation_rad
             folded = abs(math.remainder(relative, math.pi))  # branch line vs optical axis
             pending.append((folded, relative, (base_m - camera_m) / fov_m))
+    return counts, pending
+
+
+def privileged_state(
+    session: Any, matched: set[int], config: PrivilegedStateConfig | None = None
+) -> np.ndarray:
+    """The privileged vector of a scan session (module docstring's layout).
+
+    Args:
+        session: A reset :class:`branch_gym.scan.ScanSession`.
+        matched: Indices into ``session.tree.secondaries`` of the matched branches.
+        config: Size and scales.
+
+    Returns:
+        (config.size,) float32 in [-1, 1].
+    """
+    config = config or PrivilegedStateConfig()
+    vector = np.zeros(config.size, np.float32)
+    vector[PrivilegedField.PROGRESS] = session.progress
+    counts, pending = scored_branch_groups(session, matched, config.view_band_fov)
     for field, count in counts.items():
         vector[field] = min(count / config.count_scale, 1.0)
     start = len(PrivilegedField)
