@@ -109,6 +109,10 @@ def test_a_variant_is_a_derived_definition_with_its_own_name_and_digest() -> Non
         ("modeler.model_reprojection_px=4", "field 'model_reprojection_px' was removed"),
         ("modeler.consistency_min_fraction=2", "consistency_min_fraction is a fraction"),
         ("segmenter.x=1", "vary a field of modeler or curve2d"),
+        ('segmenter="gt"', "a segmenter variant names a weights file"),
+        ('segmenter="learned"', "a segmenter variant names a weights file"),
+        ("segmenter=3", "a segmenter variant names a weights file"),
+        ('segmenter="learned:no/such.pt"', "no weights file no/such.pt"),
         ("max_primary_turn_deg=45", "vary a field of modeler or curve2d"),
         ("curve2d.max_primary_turn_deg=Infinity", "changes nothing: orchard-v2 has it"),
     ],
@@ -116,6 +120,27 @@ def test_a_variant_is_a_derived_definition_with_its_own_name_and_digest() -> Non
 def test_bad_variant_settings_are_refused_with_the_reason(item: str, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         benchmark("orchard-v2").with_variant([item])
+
+
+def test_a_segmenter_variant_scans_with_its_weights_pinned_by_their_bytes(tmp_path) -> None:
+    weights = tmp_path / "candidate.pt"
+    weights.write_bytes(b"first weights")
+    bench = benchmark("orchard-v2")
+    item = f'segmenter="learned:{weights}"'
+    variant = bench.with_variant([item])
+    assert variant.name == f"orchard-v2+{item}"
+    for stratum in variant.strata:
+        scan = variant.scan_config(stratum)
+        assert scan.segmenter == f"learned:{weights}"
+        assert scan == bench.scan_config(stratum).replace(segmenter=scan.segmenter)
+    first = variant.digest()
+    assert first != bench.digest() and "segmenter_weights_sha256" not in bench.to_json_dict()
+    # Other bytes at the same path are another definition: their rows would not mix.
+    weights.write_bytes(b"retrained weights")
+    assert variant.digest() != first
+    weights.unlink()
+    with pytest.raises(ValueError, match="no weights file"):
+        variant.digest()
 
 
 def test_a_setting_given_twice_or_none_is_refused() -> None:

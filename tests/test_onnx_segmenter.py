@@ -42,10 +42,14 @@ def _branch_frames(height: int, width: int, seed: int) -> tuple[np.ndarray, np.n
 
 # The EfficientNet-Lite0 network (docs/orchard_segmenter.md), loadable as learned:PATH.
 LITE0_WEIGHTS = SHIPPED_WEIGHTS.with_name("orchard_flow_lite0.pt")
+# The side branches' skeleton-recall fine-tune (issue 61), opt-in as learned:PATH.
+SIDE_WEIGHTS = SHIPPED_WEIGHTS.with_name("orchard_flow_side.pt")
 
 
 @pytest.mark.parametrize(
-    "weights", [SHIPPED_WEIGHTS, RGB_CLEAN_WEIGHTS, LITE0_WEIGHTS], ids=lambda p: p.stem
+    "weights",
+    [SHIPPED_WEIGHTS, RGB_CLEAN_WEIGHTS, LITE0_WEIGHTS, SIDE_WEIGHTS],
+    ids=lambda p: p.stem,
 )
 def test_shipped_weights_have_a_current_onnx_export(weights: Path) -> None:
     if weights == LITE0_WEIGHTS:

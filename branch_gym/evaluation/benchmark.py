@@ -14,8 +14,10 @@ fails when a definition and its row disagree. A change that moves any figure is 
 (``orchard-v2``), with a line in the Version History saying what changed.
 
 A proposed change of the reconstruction is tried on a benchmark's trees as a *variant*
-(:meth:`Benchmark.with_variant`, ``eval.py --benchmark NAME --variant SECTION.FIELD=VALUE``): a
-derived definition named ``NAME+SECTION.FIELD=VALUE``, with its own digest, so that its rows are
+(:meth:`Benchmark.with_variant`, ``eval.py --benchmark NAME --variant SECTION.FIELD=VALUE``, or a
+candidate segmenter's weights, ``--variant 'segmenter="learned:PATH"'``): a derived definition
+named ``NAME+SECTION.FIELD=VALUE``, with its own digest (a weights file's by its bytes), so that
+its rows are
 refused in the benchmark's own output folder and its page says what it is. A variant is never
 published: where it helps, the change becomes a default and the benchmark a new version.
 
@@ -53,6 +55,7 @@ from branch_gym.sim.world import WorldConfig
 from branch_gym.training.seeds import EVAL_SEED_BASE
 from recon.config import REMOVED_MODELER_FIELDS, ModelerConfig, parse_setting, removed_field_message
 from recon.metrics import MetricsConfig
+from recon.segmentation.spec import SegmenterSpec
 
 SPLITS = ("test", "validation")
 # The benchmarks' test and validation seeds, held out: above eval.py's ad-hoc trees (--seed 0
@@ -66,9 +69,11 @@ SCAN_FIELDS_ADDED_SINCE: dict[str, object] = {
     "curve2d": CURVE2D_BEFORE_SCAN_FIELD,  # the 2D stage, a scan setting since December 2026
 }
 _NOT_ADDED = object()
-# What a variant may vary: the reconstruction's settings (ScanConfig.modeler and .curve2d), never
-# what the benchmark measures (its world, trees, segmenter, seeds and scoring).
+# What a variant may vary: the reconstruction's settings (ScanConfig.modeler and .curve2d) and its
+# segmenter, as a weights file (learned:PATH, pinned by its bytes), never what the benchmark
+# measures (its world, trees, seeds and scoring).
 VARIANT_SECTIONS = ("modeler", "curve2d")
+VARIANT_SEGMENTER = "segmenter"
 # Between a benchmark's name and each of its variant's settings: orchard-v2+curve2d.X=45.
 VARIANT_SEPARATOR = "+"
 
@@ -118,8 +123,9 @@ class Benchmark:
         baseline_policy: No rotation: the headroom is its gap to the bound.
         variant: Reconstruction settings over the scan, as (``SECTION.FIELD``, value) pairs
             with SECTION one of :data:`VARIANT_SECTIONS` (a nested field: ``curve2d.skeleton.
-            max_gap_px``): a derived definition that tries a change on the benchmark's trees
-            (:meth:`with_variant`), named after them, never published. Empty: a benchmark.
+            max_gap_px``), or (``segmenter``, ``"learned:PATH"``): a derived definition that
+            tries a change on the benchmark's trees (:meth:`with_variant`), named after them,
+            never published. Empty: a benchmark.
     """
 
     name: str
@@ -195,11 +201,13 @@ class Benchmark:
                 :data:`VARIANT_SECTIONS` (``modeler``: :class:`recon.config.ModelerConfig`,
                 ``curve2d``: :class:`recon.curve2d.types.Curve2DConfig`), VALUE in JSON (``45``,
                 ``true``, ``null``, ``Infinity``); an integer for a float field is taken as the
-                float (``45`` and ``45.0`` are one variant).
+                float (``45`` and ``45.0`` are one variant). Or ``segmenter="learned:PATH"``:
+                another weights file, its SHA-256 in the digest.
 
         Raises:
             ValueError: no setting; an item not ``PATH=VALUE`` or its value not JSON; a section
-                not in :data:`VARIANT_SECTIONS`, an unknown or removed field; a path set twice;
+                not in :data:`VARIANT_SECTIONS`, an unknown or removed field; a segmenter not a
+                ``learned:PATH`` of an existing weights file; a path set twice;
                 a value the config refuses (e.g. ``curve2d.max_primary_turn_deg=0``) or one that
                 changes nothing.
         """
@@ -209,10 +217,13 @@ class Benchmark:
         settings = dict(self.variant)
         for item in items:
             path, value = parse_setting(item, "variant setting")
-            if path.split(".", 1)[0] not in VARIANT_SECTIONS or "." not in path:
+            if path == VARIANT_SEGMENTER:
+                _segmenter_weights_sha256(value, item)  # refuses what is not a weights file
+            elif path.split(".", 1)[0] not in VARIANT_SECTIONS or "." not in path:
                 raise ValueError(
                     f"variant setting {item!r}: vary a field of {' or '.join(VARIANT_SECTIONS)} "
-                    "(SECTION.FIELD=VALUE, e.g. curve2d.max_primary_turn_deg=45)"
+                    "(SECTION.FIELD=VALUE, e.g. curve2d.max_primary_turn_deg=45) or the "
+                    'segmenter (segmenter="learned:PATH")'
                 )
             if path in settings:
                 raise ValueError(f"variant setting {item!r}: {path} is set twice")
@@ -248,6 +259,11 @@ class Benchmark:
         data = asdict(self)
         if not self.variant:  # published before variants existed: their digests stay
             del data["variant"]
+        variant = dict(self.variant)
+        if VARIANT_SEGMENTER in variant:  # the weights' bytes, not only their path
+            data["segmenter_weights_sha256"] = _segmenter_weights_sha256(
+                variant[VARIANT_SEGMENTER], f"{VARIANT_SEGMENTER} of {self.name}"
+            )
         data["scan_changes"] = [
             [name, value]
             for name, value in self.scan_changes
@@ -300,6 +316,27 @@ def _with_setting(config: Any, path: str, value: object) -> Any:
     ):
         value = float(value)
     return replace(config, **{name: value})
+
+
+def _segmenter_weights_sha256(spec: object, item: str) -> str:
+    """SHA-256 (hex) of the weights file a variant's ``learned:PATH`` segmenter names.
+
+    Raises:
+        ValueError: not a ``learned:PATH`` spec, or no such file; named with ``item``.
+    """
+    try:
+        parsed = SegmenterSpec.parse(spec) if isinstance(spec, str) else None
+    except ValueError:  # another package's kind (gt, noisy:...), or not a spec at all
+        parsed = None
+    if parsed is None or not parsed.is_learned or parsed.option is None:
+        raise ValueError(
+            f"variant setting {item!r}: a segmenter variant names a weights file, "
+            f'segmenter="learned:PATH", got {spec!r}'
+        )
+    path = Path(parsed.option).expanduser()
+    if not path.is_file():
+        raise ValueError(f"variant setting {item!r}: no weights file {path}")
+    return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
 def _setting_items(settings: Iterable[tuple[str, object]]) -> list[str]:

@@ -29,7 +29,8 @@ and ``benchmark.json``. The scan options and ``--seed`` are refused with it.
 
 ``--variant SECTION.FIELD=VALUE ...`` (with ``--benchmark``) tries a change of the
 reconstruction on the benchmark's trees: ``modeler.FIELD`` or ``curve2d.FIELD`` (``ScanConfig``'s
-``modeler`` and ``curve2d``), e.g. ``--variant curve2d.max_primary_turn_deg=45``. It runs a
+``modeler`` and ``curve2d``), e.g. ``--variant curve2d.max_primary_turn_deg=45``, or a candidate
+segmenter's weights, ``--variant 'segmenter="learned:PATH"'`` (its SHA-256 in the digest). It runs a
 derived definition, ``NAME+curve2d.max_primary_turn_deg=45``, with its own digest: give it its
 own ``--out`` (the benchmark's refuses its rows); its page says it is a variant, and with
 ``--base-out DIR`` (the benchmark's own ``--out`` of the same split) pairs each policy with
@@ -86,6 +87,11 @@ _FIXED_BY_BENCHMARK = (
     "--seed", "--world", "--tree", "--tracker", "--segmenter", "--speed", "--end-height",
     "--modeler", "--record", "--plot-trees",
 )  # fmt: skip
+# Of those, what a variant varies instead (Benchmark.with_variant).
+_VARIED_BY_VARIANT = {
+    "--modeler": "modeler.FIELD=VALUE",
+    "--segmenter": "'segmenter=\"learned:PATH\"'",
+}
 
 
 def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
@@ -126,7 +132,8 @@ def build_parser(factory: PolicyFactory) -> argparse.ArgumentParser:
         help="with --benchmark: run a variant of it, a derived definition with its own name and "
         "digest (give it its own --out) with reconstruction settings changed: modeler.FIELD "
         "(recon.config.ModelerConfig) or curve2d.FIELD (recon.curve2d.types.Curve2DConfig), "
-        "JSON values, e.g. curve2d.max_primary_turn_deg=45",
+        "JSON values, e.g. curve2d.max_primary_turn_deg=45; or segmenter='\"learned:PATH\"' "
+        "(candidate weights, pinned by their SHA-256)",
     )
     parser.add_argument(
         "--base-out",
@@ -187,7 +194,9 @@ def main(
     if args.benchmark is not None:
         fixed = [f for f in _FIXED_BY_BENCHMARK if any(a.split("=")[0] == f for a in argv)]
         if fixed:
-            hint = " (--variant modeler.FIELD=VALUE varies it)" if "--modeler" in fixed else ""
+            varied = [_VARIED_BY_VARIANT[f] for f in fixed if f in _VARIED_BY_VARIANT]
+            verb = "varies it" if len(varied) == 1 else "vary them"
+            hint = f" (--variant {' '.join(varied)} {verb})" if varied else ""
             parser.error(f"--benchmark fixes the scan and the trees: drop {' '.join(fixed)}{hint}")
         if args.trees is not None and args.trees < 1:
             parser.error(f"--trees must be >= 1, got {args.trees}")
