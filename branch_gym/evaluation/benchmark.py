@@ -17,9 +17,8 @@ A proposed change of the reconstruction is tried on a benchmark's trees as a *va
 (:meth:`Benchmark.with_variant`, ``eval.py --benchmark NAME --variant SECTION.FIELD=VALUE``, or a
 candidate segmenter's weights, ``--variant 'segmenter="learned:PATH"'``): a derived definition
 named ``NAME+SECTION.FIELD=VALUE``, with its own digest (a weights file's by its bytes), so that
-its rows are
-refused in the benchmark's own output folder and its page says what it is. A variant is never
-published: where it helps, the change becomes a default and the benchmark a new version.
+its rows are refused in the benchmark's own output folder and its page says what it is. A variant
+is never published: where it helps, the change becomes a default and the benchmark a new version.
 
 Seeds: a stratum's test and validation seeds lie in ``[HELD_OUT_SEED_START, HELD_OUT_SEED_END)``,
 which nothing else draws from: ``eval.py``'s own trees start at 0, training's evaluation trees at
