@@ -136,6 +136,7 @@ def _train(args: argparse.Namespace) -> None:
     flow = replace(
         base.orchard.flow, no_flow_probability=args.no_flow_probability,
         near_twig_probability=args.near_twig_probability,
+        exact_probability=args.exact_flow_probability,
     )  # fmt: skip
     config = replace(
         base, net=net, steps=args.steps, batch_size=args.batch_size,
@@ -327,6 +328,11 @@ def main(argv: list[str] | None = None) -> int:
                     default=TrainConfig.skeleton_target,
                     help="the term on every branch pixel (all: clDice) or the side branches' "
                     "skeleton recall alone (side)")  # fmt: skip
+    tr.add_argument(
+        "--exact-flow-probability", type=float, default=FlowAugmentConfig.exact_probability,
+        help="share of orchard training pictures from the exact flow corrupted as flow networks "
+        "err (the rest: OpenCV's DIS, the flow a scan computes)",
+    )  # fmt: skip
     tr.add_argument(
         "--near-twig-probability", type=float, default=FlowAugmentConfig.near_twig_probability,
         help="share of orchard training frames with a near twig setting the flow picture's scale",
