@@ -15,13 +15,45 @@ from branch_gym.evaluation.benchmark import (
     Stratum,
     TrialRow,
     benchmark,
+    check_default_weights,
     load_rows,
     outcome_from_rows,
+    run_benchmark,
     save_rows,
 )
 from branch_gym.evaluation.benchmark_page import benchmark_results, format_page
 from branch_gym.training.seeds import MAX_EVAL_TREES, eval_tree_seeds, train_seed_range
 from recon.metrics import BRANCH_CLASSES
+from recon.segmentation import segmenter as segmenter_module
+
+
+def test_a_version_from_pixels_is_run_on_the_weights_it_was_published_with(
+    tmp_path, monkeypatch
+) -> None:
+    import hashlib
+
+    shipped = segmenter_module.default_weights_path()
+    for row in VERSION_HISTORY:
+        learned = benchmark(row.name).segmenter == "learned"
+        assert (row.default_weights_sha256 is not None) == learned, row.name
+        if learned:  # a retrained default fails here: publish it as a new version
+            assert hashlib.sha256(shipped.read_bytes()).hexdigest() == row.default_weights_sha256
+            check_default_weights(benchmark(row.name))
+    other = tmp_path / "retrained.pt"
+    other.write_bytes(b"other weights")
+    monkeypatch.setattr(segmenter_module, "default_weights_path", lambda: other)
+    orchard = benchmark("orchard-v2")
+    with pytest.raises(ValueError, match="orchard-v2 was run with other default segmenter"):
+        check_default_weights(orchard)
+    with pytest.raises(ValueError, match="new benchmark version"):  # a variant of it, too
+        check_default_weights(orchard.with_variant(["curve2d.max_primary_turn_deg=45"]))
+    from agents.factory import AGENTS
+
+    with pytest.raises(ValueError, match="new benchmark version"):  # before any scan runs
+        run_benchmark(orchard, ["none"], "validation", tmp_path / "rows", AGENTS)
+    assert not (tmp_path / "rows").exists()
+    check_default_weights(benchmark("paper-v1"))  # the renderer's labels: no weights
+    check_default_weights(orchard.with_variant([f'segmenter="learned:{other}"']))  # pinned
 
 
 def test_a_benchmark_definition_cannot_change_without_its_version() -> None:

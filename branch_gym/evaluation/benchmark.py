@@ -54,7 +54,7 @@ from branch_gym.sim.world import WorldConfig
 from branch_gym.training.seeds import EVAL_SEED_BASE
 from recon.config import REMOVED_MODELER_FIELDS, ModelerConfig, parse_setting, removed_field_message
 from recon.metrics import MetricsConfig
-from recon.segmentation.spec import SegmenterSpec
+from recon.segmentation.spec import LEARNED_KIND, SegmenterSpec
 
 SPLITS = ("test", "validation")
 # The benchmarks' test and validation seeds, held out: above eval.py's ad-hoc trees (--seed 0
@@ -365,11 +365,22 @@ def _published_scan_dict(scan: ScanConfig) -> dict:
 
 @dataclass(frozen=True)
 class VersionRow:
-    """One published benchmark version: its digest and what it changed."""
+    """One published benchmark version: its digest and what it changed.
+
+    Attributes:
+        name: The benchmark's name.
+        digest: :meth:`Benchmark.digest` of its definition.
+        change: What it changed, one line.
+        default_weights_sha256: For a version scanned with the default segmenter
+            (``segmenter="learned"``), the SHA-256 of the weights it was run with: the digest
+            names the segmenter, not its bytes, so :func:`check_default_weights` refuses to run
+            it on other weights (a new default is a new version). None: no learned segmenter.
+    """
 
     name: str
     digest: str
     change: str
+    default_weights_sha256: str | None = None
 
 
 # paper-v1: the paper's clean world and tree, 60 trees as Table I, scored by the paper's rules (in
@@ -423,6 +434,9 @@ ORCHARD_V2 = replace(
     # default 100 s is the paper stretch's; v1's slowest fixed schedules timed out at it).
     scan_changes=(("max_scan_time_s", 160.0),),
 )
+# recon/segmentation/weights/orchard_flow.pt as shipped on 2026-12-04 (commit 30ed77c), the
+# default segmenter's weights when orchard-v1 and orchard-v2 were published (2026-12-07).
+ORCHARD_FLOW_2026_12_04_SHA256 = "0b9e33981ec36a42531eb4ab2ebfbbcad4ab52925060b2dcc4403b88411edd3f"
 BENCHMARKS: dict[str, Benchmark] = {b.name: b for b in (PAPER_V1, ORCHARD_V1, ORCHARD_V2)}
 # Every published version, newest first (a row's digest is its definition's: tests check them).
 VERSION_HISTORY: tuple[VersionRow, ...] = (
@@ -433,6 +447,7 @@ VERSION_HISTORY: tuple[VersionRow, ...] = (
         "nor count toward a lost branch (v1 lost 14 of 303 rotating scans, 0 of 101 without); "
         "270 test trees, sized by the power computation on a v2 validation pilot; a 160 s scan "
         "limit (5x a straight scan of the leader)",
+        default_weights_sha256=ORCHARD_FLOW_2026_12_04_SHA256,
     ),
     VersionRow(
         "orchard-v1",
@@ -440,6 +455,7 @@ VERSION_HISTORY: tuple[VersionRow, ...] = (
         "initial: the orchard world from pixels, a tall-spindle leader's fruiting stretch, "
         "reconstructions classed against the tree's details, neighbours and trellis, unreached "
         "branches missed",
+        default_weights_sha256=ORCHARD_FLOW_2026_12_04_SHA256,
     ),
     VersionRow(
         "paper-v1",
@@ -447,6 +463,33 @@ VERSION_HISTORY: tuple[VersionRow, ...] = (
         "initial: the paper's world and Table I, from the renderer's labels, the paper's scope",
     ),
 )
+
+
+def check_default_weights(bench: Benchmark) -> None:
+    """Refuse to scan a published version on other default segmenter weights than its own.
+
+    A version's digest names its segmenter (``"learned"``: the default weights), not the
+    weights' bytes; its row records them (:attr:`VersionRow.default_weights_sha256`). A variant
+    scanning another weights file is pinned by its digest instead.
+
+    Raises:
+        ValueError: the default weights' SHA-256 is not the one ``bench``'s version was run with.
+    """
+    if bench.scan_config(bench.strata[0]).segmenter != LEARNED_KIND:
+        return
+    row = next((r for r in VERSION_HISTORY if r.name == bench.base_name), None)
+    if row is None or row.default_weights_sha256 is None:
+        return
+    from recon.segmentation.segmenter import default_weights_path  # torch: only to scan
+
+    path = default_weights_path()
+    if hashlib.sha256(path.read_bytes()).hexdigest() != row.default_weights_sha256:
+        raise ValueError(
+            f"{bench.base_name} was run with other default segmenter weights than {path} holds "
+            f"now (SHA-256 {row.default_weights_sha256[:12]}...): its figures would move under "
+            "its name. A new default is a new benchmark version; try new weights as a variant "
+            "(--variant 'segmenter=\"learned:PATH\"')"
+        )
 
 
 def benchmark(name: str) -> Benchmark:
@@ -610,10 +653,12 @@ def run_benchmark(
         on_done: Called after each trial run.
 
     Raises:
-        ValueError: rows of another definition in ``out``; a bad spec.
+        ValueError: rows of another definition in ``out``; a bad spec; default segmenter weights
+            the version was not run with (:func:`check_default_weights`).
         ConfigMismatchError: trial files of another scan configuration in ``out/<stratum>``.
         TrialError: a trial raised (the finished ones keep their rows).
     """
+    check_default_weights(bench)
     policies = bench.policies_with_references(policies)
     rows = load_rows(out, bench)
     outcome = BenchmarkOutcome(bench, split, [])
