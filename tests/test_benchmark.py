@@ -24,7 +24,7 @@ from branch_gym.evaluation.benchmark import (
 from branch_gym.evaluation.benchmark_page import benchmark_results, format_page
 from branch_gym.training.seeds import MAX_EVAL_TREES, eval_tree_seeds, train_seed_range
 from recon.metrics import BRANCH_CLASSES
-from recon.segmentation import segmenter as segmenter_module
+from recon.segmentation import spec as spec_module
 
 
 def test_a_version_from_pixels_is_run_on_the_weights_it_was_published_with(
@@ -32,7 +32,7 @@ def test_a_version_from_pixels_is_run_on_the_weights_it_was_published_with(
 ) -> None:
     import hashlib
 
-    shipped = segmenter_module.default_weights_path()
+    shipped = spec_module.default_weights_path()
     for row in VERSION_HISTORY:
         learned = benchmark(row.name).segmenter == "learned"
         assert (row.default_weights_sha256 is not None) == learned, row.name
@@ -41,7 +41,7 @@ def test_a_version_from_pixels_is_run_on_the_weights_it_was_published_with(
             check_default_weights(benchmark(row.name))
     other = tmp_path / "retrained.pt"
     other.write_bytes(b"other weights")
-    monkeypatch.setattr(segmenter_module, "default_weights_path", lambda: other)
+    monkeypatch.setattr(spec_module, "default_weights_path", lambda: other)
     orchard = benchmark("orchard-v2")
     with pytest.raises(ValueError, match="orchard-v2 was run with other default segmenter"):
         check_default_weights(orchard)

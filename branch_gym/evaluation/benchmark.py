@@ -54,7 +54,7 @@ from branch_gym.sim.world import WorldConfig
 from branch_gym.training.seeds import EVAL_SEED_BASE
 from recon.config import REMOVED_MODELER_FIELDS, ModelerConfig, parse_setting, removed_field_message
 from recon.metrics import MetricsConfig
-from recon.segmentation.spec import LEARNED_KIND, SegmenterSpec
+from recon.segmentation.spec import LEARNED_KIND, SegmenterSpec, weights_path_of
 
 SPLITS = ("test", "validation")
 # The benchmarks' test and validation seeds, held out: above eval.py's ad-hoc trees (--seed 0
@@ -332,9 +332,14 @@ def _segmenter_weights_sha256(spec: object, item: str) -> str:
             f"variant setting {item!r}: a segmenter variant names a weights file, "
             f'segmenter="learned:PATH", got {spec!r}'
         )
-    path = Path(parsed.option).expanduser()
+    path = weights_path_of(parsed)
     if not path.is_file():
         raise ValueError(f"variant setting {item!r}: no weights file {path}")
+    return _file_sha256(path)
+
+
+def _file_sha256(path: Path) -> str:
+    """SHA-256 (hex) of a file's bytes (a weights file: its content, not its name)."""
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
@@ -480,10 +485,8 @@ def check_default_weights(bench: Benchmark) -> None:
     row = next((r for r in VERSION_HISTORY if r.name == bench.base_name), None)
     if row is None or row.default_weights_sha256 is None:
         return
-    from recon.segmentation.segmenter import default_weights_path  # torch: only to scan
-
-    path = default_weights_path()
-    if hashlib.sha256(path.read_bytes()).hexdigest() != row.default_weights_sha256:
+    path = weights_path_of(LEARNED_KIND)
+    if _file_sha256(path) != row.default_weights_sha256:
         raise ValueError(
             f"{bench.base_name} was run with other default segmenter weights than {path} holds "
             f"now (SHA-256 {row.default_weights_sha256[:12]}...): its figures would move under "

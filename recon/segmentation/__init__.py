@@ -21,7 +21,7 @@ _EXPORTS = {
     "SegmenterNetConfig": "network",
     "count_parameters": "network",
     "LearnedSegmenter": "segmenter",
-    "default_weights_path": "segmenter",
+    "default_weights_path": "spec",
     "fuse_batch_norm": "segmenter",
     "load_segmenter": "segmenter",
     "SegmenterWeightsError": "weights",

@@ -11,7 +11,6 @@ from __future__ import annotations
 import copy
 import itertools
 import logging
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -21,23 +20,22 @@ from recon.segmentation.flow import DenseFlowConfig, flow_picture
 from recon.segmentation.inputs import FlowConfig, check_flow_image, make_input, make_picture_input
 from recon.segmentation.network import SUBPIXELS, SegmenterNet, subpixels_to_image
 from recon.segmentation.onnx_network import OnnxNetwork, load_onnx_network
-from recon.segmentation.spec import LEARNED_KIND, SegmenterSpec
+from recon.segmentation.spec import (  # noqa: F401  (torch-free; re-exported here)
+    LEARNED_KIND,
+    SHIPPED_WEIGHTS,
+    WEIGHTS_DIR,
+    SegmenterSpec,
+    default_weights_path,
+    weights_path_of,
+)
 from recon.segmentation.weights import load_weights
 
 logger = logging.getLogger(__name__)
 
-_WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
-# The shipped weights: package data beside this module.
-SHIPPED_WEIGHTS = _WEIGHTS_DIR / "orchard_flow.pt"
 # The RGB-only network trained on the clean world (issue 15), loadable as learned:PATH.
-RGB_CLEAN_WEIGHTS = _WEIGHTS_DIR / "rgb_clean.pt"
+RGB_CLEAN_WEIGHTS = WEIGHTS_DIR / "rgb_clean.pt"
 RUNTIMES = ("auto", "onnxruntime", "torch")
 """What may run the network (:func:`load_segmenter`)."""
-
-
-def default_weights_path() -> Path:
-    """The shipped weights (:data:`SHIPPED_WEIGHTS`)."""
-    return SHIPPED_WEIGHTS
 
 
 def fuse_batch_norm(model: nn.Module) -> nn.Module:
@@ -260,20 +258,6 @@ class LearnedSegmenter:
         subpixels, (h, w) = self._subpixel_logits(rgb, previous_rgb, flow_image)
         # Thresholded before depth-to-space (a permutation): the same mask, less to move.
         return subpixels_to_image(subpixels > self._logit_threshold)[:h, :w]
-
-
-def weights_path_of(spec: str | SegmenterSpec) -> Path:
-    """The weights file a learned segmenter spec names.
-
-    Args:
-        spec: ``"learned"`` (:func:`default_weights_path`) or ``"learned:PATH"``
-            (:class:`recon.segmentation.spec.SegmenterSpec`, text or parsed).
-
-    Raises:
-        ValueError: Not a learned segmenter spec.
-    """
-    option = SegmenterSpec.parse(spec).option
-    return default_weights_path() if option is None else Path(option).expanduser()
 
 
 def load_segmenter(

@@ -20,10 +20,15 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import ClassVar
 
 LEARNED_KIND = "learned"
 """The kind of a learned segmenter's spec: ``learned`` or ``learned:PATH``."""
+WEIGHTS_DIR = Path(__file__).resolve().parent / "weights"
+"""The shipped weights files: package data beside this module."""
+SHIPPED_WEIGHTS = WEIGHTS_DIR / "orchard_flow.pt"
+"""The weights ``learned`` names."""
 
 
 @dataclass(frozen=True)
@@ -114,3 +119,21 @@ def is_learned_segmenter(text: object) -> bool:
         return SegmenterSpec.parse(text).is_learned
     except ValueError:
         return False
+
+
+def default_weights_path() -> Path:
+    """The shipped weights (:data:`SHIPPED_WEIGHTS`)."""
+    return SHIPPED_WEIGHTS
+
+
+def weights_path_of(spec: str | SegmenterSpec) -> Path:
+    """The weights file a learned segmenter spec names.
+
+    Args:
+        spec: ``"learned"`` (:func:`default_weights_path`) or ``"learned:PATH"``, text or parsed.
+
+    Raises:
+        ValueError: Not a learned segmenter spec.
+    """
+    option = SegmenterSpec.parse(spec).option  # this class parses learned specs only
+    return default_weights_path() if option is None else Path(option).expanduser()
